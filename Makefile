@@ -35,3 +35,20 @@ train: $(STAMP)
 
 clean:
 	rm -rf outputs multirun .pytest_cache
+
+# Paper reproduction from the shipped checkpoints (checkpoints/) and the two baselines.
+EPISODES ?= 500
+reproduce-table3: $(STAMP)
+	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES)
+
+reproduce-table4: $(STAMP)
+	$(PYTHON) scripts/reproduce.py table=4 episodes=$(EPISODES)
+
+reproduce-table5: $(STAMP)
+	$(PYTHON) scripts/reproduce.py table=5 episodes=$(EPISODES)
+
+figures: $(STAMP)
+	$(PYTHON) scripts/figures.py
+
+tune-baselines: $(STAMP)
+	$(PYTHON) scripts/tune_baselines.py
