@@ -22,7 +22,10 @@ _TWO_PI = 2.0 * math.pi
 
 def wrap(angle: torch.Tensor) -> torch.Tensor:
     """Map angles to ``[-pi, pi)`` (SPEC "Units")."""
-    return torch.remainder(angle + _PI, _TWO_PI) - _PI
+    wrapped = torch.remainder(angle + _PI, _TWO_PI) - _PI
+    # Angles already in range pass unchanged: the round trip through ``remainder`` costs an
+    # ulp, enough to push a UAV exactly on the camera's edge (+-phi_v/2) out of view.
+    return torch.where((angle >= -_PI) & (angle < _PI), angle, wrapped)
 
 
 def bearing(vec: torch.Tensor) -> torch.Tensor:

@@ -16,7 +16,10 @@ from .geometry import Obstacles, cast_rays, circular_mean, pairwise, relative_an
 
 def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor:
     """Beam headings relative to the UAV's heading, ``k * 2 pi / n_beams``, ``[n_beams]``."""
-    return torch.arange(n_beams, device=device, dtype=dtype) * (2 * math.pi / n_beams)
+    # In float64, then rounded: float32 arithmetic puts beam 18 of 36 an ulp *below* pi,
+    # so it would wrap to +pi instead of -pi.
+    offsets = torch.arange(n_beams, device=device, dtype=torch.float64) * (2 * math.pi / n_beams)
+    return offsets.to(dtype)
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
