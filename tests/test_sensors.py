@@ -1,0 +1,309 @@
+"""sensors.py and the env's two views: laser / o_scan, camera / o_cam, o_g, s_c, S4 noise (SPEC 2)."""
+
+import math
+
+import pytest
+import torch
+
+from flock_torchrl.geometry import Obstacles
+from flock_torchrl.sensors import (
+    Neighbours, add_sensor_noise, beam_offsets, camera_observation, goal_observation, laser_scan,
+    observe_neighbours, scan_observation, shortest_beams, swarm_centre_state, visibility,
+)
+
+PI = math.pi
+FOV = 0.5 * PI  # phi_v of the G policies
+
+
+def no_obstacles():
+    return Obstacles(torch.zeros(1, 0, 3), torch.zeros(1, 0, 4))
+
+
+# ---------------------------------------------------------------- laser
+def test_beam_offsets_are_ten_degrees_apart():
+    off = beam_offsets(36)
+    assert off.shape == (36,)
+    assert off[1].item() == pytest.approx(PI / 18)    # 10 deg
+    assert off[9].item() == pytest.approx(PI / 2)     # 90 deg
+    assert off[18].item() == pytest.approx(PI)        # 180 deg
+
+
+def test_laser_scan_circle_from_known_pose():
+    # Circle (0, 3) r 1; UAV 0 at the origin facing +y (heading pi/2), UAV 1 inside the circle.
+    obstacles = Obstacles(torch.tensor([[[0.0, 3.0, 1.0]]]), torch.zeros(1, 0, 4))
+    position = torch.tensor([[[0.0, 0.0], [0.0, 2.5]]])
+    beams, hit = laser_scan(position, torch.tensor([[PI / 2, 0.3]]), obstacles, 36, 10.0)
+    assert beams.shape == hit.shape == (1, 2, 36)
+    b = beams[0, 0]
+    # Beam 0 points at heading + 0 = +y: hits y = 3 - 1 = 2 -> 2.
+    assert b[0].item() == pytest.approx(2.0, abs=1e-5)
+    # Beams 1 and 35 (+-10 deg): t = 3 cos 10 - sqrt(9 cos^2 10 - 8) = 2.95442 - 0.85359 = 2.10083.
+    assert b[1].item() == pytest.approx(2.100833, abs=1e-5)
+    assert b[35].item() == pytest.approx(2.100833, abs=1e-5)
+    # Beam 9 (world angle pi, -x) and beam 18 (-y) miss: capped at 10.
+    assert b[9].item() == 10.0 and b[18].item() == 10.0
+    assert hit[0, 0, 0].item() == 0 and hit[0, 0, 18].item() == -1
+    # UAV 1 is inside the circle ((0, 2.5) is 0.5 from the centre): every beam is 0.
+    assert torch.equal(beams[0, 1], torch.zeros(36))
+
+
+def test_laser_in_env_rectangle_and_range(make_env, place):
+    # Training world; UAV at (20, 40) facing +x. Beam 18 (-x) hits the rectangle face x = 13:
+    # 20 - 13 = 7. Beams 17 / 19 (+-10 deg off -x): 7 / cos 10 deg = 7.10803 (y = 40 -+ 1.234, on
+    # the face). Beam 0 (+x) would hit the circle at x = 34 after 14 m > 10: capped.
+    env = make_env("train", n_uavs=1)
+    place(env, [[[20.0, 40.0]]], [[0.0]], [[20.0, 0.0]])
+    scan = env.sensed["scan"][0, 0]
+    assert scan[18].item() == pytest.approx(7.0, abs=1e-5)
+    assert scan[17].item() == pytest.approx(7 / math.cos(PI / 18), abs=1e-5)
+    assert scan[19].item() == pytest.approx(7 / math.cos(PI / 18), abs=1e-5)
+    assert scan[0].item() == 10.0
+    # Rectangles come after the circle: index 1 = the rectangle at (10, 40).
+    assert env.sensed["scan_obstacle"][0, 0, 18].item() == 1
+    # o_scan = observation[2:8]: [7/10, alpha(beam 18) = -pi -> -1.0], then 0.71080 with alphas
+    # 170 deg -> 17/18 = 0.94444 and -170 deg -> -0.94444 (the two may come in either order: their
+    # float lengths differ by an ulp).
+    o_scan = env.sensed["observation"][0, 0, 2:8]
+    assert o_scan[0].item() == pytest.approx(0.7, abs=1e-6)
+    assert o_scan[1].item() == -1.0
+    assert o_scan[2].item() == pytest.approx(0.710803, abs=1e-5)
+    assert o_scan[4].item() == pytest.approx(0.710803, abs=1e-5)
+    assert sorted([o_scan[3].item(), o_scan[5].item()]) == pytest.approx([-17 / 18, 17 / 18], abs=1e-6)
+    # Facing +y instead, the rectangle (world angle pi) sits at +90 deg: beam 9, alpha 0.5.
+    place(env, [[[20.0, 40.0]]], [[PI / 2]], [[20.0, 0.0]])
+    o_scan = env.sensed["observation"][0, 0, 2:8]
+    assert o_scan[:2].tolist() == pytest.approx([0.7, 0.5], abs=1e-6)
+    # Inside an obstacle every beam is 0: o_scan's distances are 0, at beams 0, 1, 2.
+    place(env, [[[40.0, 41.0]]], [[0.0]], [[20.0, 0.0]])
+    assert torch.equal(env.sensed["scan"][0, 0], torch.zeros(36))
+    assert env.sensed["observation"][0, 0, 2:8].tolist() == pytest.approx([0, 0, 0, 1 / 18, 0, 2 / 18])
+
+
+def test_o_scan_ordering_ties_and_alpha():
+    beams = torch.full((1, 1, 36), 10.0)
+    beams[0, 0, 5] = 3.0    # 50 deg
+    beams[0, 0, 2] = 3.0    # 20 deg, ties with beam 5 -> beam 2 first (lower index)
+    beams[0, 0, 30] = 1.0   # 300 deg = -60 deg
+    dist, idx = shortest_beams(beams, 3)
+    assert idx[0, 0].tolist() == [30, 2, 5] and dist[0, 0].tolist() == [1.0, 3.0, 3.0]
+    # [d/10, alpha/pi]: [0.1, -60/180 = -0.33333], [0.3, 20/180 = 0.11111], [0.3, 50/180 = 0.27778]
+    out = scan_observation(beams, 3, 10.0)
+    assert out.shape == (1, 1, 6)
+    assert out[0, 0].tolist() == pytest.approx([0.1, -1 / 3, 0.3, 1 / 9, 0.3, 5 / 18], abs=1e-6)
+
+
+def test_o_scan_beam_18_is_minus_one():
+    # Beam 18 points backwards: alpha = wrap(180 deg) = -pi (the range is [-pi, pi)) -> -1.0 exactly.
+    beams = torch.full((1, 1, 36), 10.0)
+    beams[0, 0, 18] = 4.0
+    beams[0, 0, 27] = 5.0  # 270 deg = -90 deg -> -0.5
+    beams[0, 0, 9] = 6.0   # 90 deg -> 0.5
+    out = scan_observation(beams, 3, 10.0)[0, 0]
+    assert out.tolist() == pytest.approx([0.4, -1.0, 0.5, -0.5, 0.6, 0.5], abs=1e-6)
+    assert out[1].item() == -1.0
+
+
+def test_o_scan_all_ties_take_the_first_beams():
+    # Nothing in range: all 36 beams are 10 -> beams 0, 1, 2: [1, 0], [1, 10/180], [1, 20/180].
+    out = scan_observation(torch.full((2, 3, 36), 10.0), 3, 10.0)
+    assert out.shape == (2, 3, 6)
+    assert torch.allclose(out, torch.tensor([1.0, 0.0, 1.0, 1 / 18, 1.0, 1 / 9]).expand(2, 3, 6))
+
+
+# ---------------------------------------------------------------- camera
+def test_visibility_fov_edges_and_strict_range():
+    # UAV 0 at the origin facing +x (heading 0, so bearings are exact atan2 values).
+    d = 2.0
+    position = torch.tensor([[[0.0, 0.0],
+                              [1.0, 1.0],                                   # bearing +pi/4 = +phi_v/2: visible
+                              [1.0, -1.0],                                  # bearing -pi/4: visible
+                              [d * math.cos(PI / 4 + 1e-3), d * math.sin(PI / 4 + 1e-3)],   # just outside
+                              [d * math.cos(-PI / 4 - 1e-3), d * math.sin(-PI / 4 - 1e-3)],  # just outside
+                              [5.0, 0.0],                                   # d = d_v = 5: not (strict <)
+                              [4.99, 0.0]]])                                # 4.99 < 5: visible
+    heading = torch.zeros(1, 7)
+    nb = observe_neighbours(position, heading, 5.0, FOV)
+    assert nb.visible[0, 0].tolist() == [False, True, True, False, False, False, True]
+    assert nb.bearing[0, 0, 1].item() == pytest.approx(PI / 4)
+    # The visibility rule itself on raw numbers: |alpha| <= phi_v/2 and d < d_v, never oneself.
+    v = visibility(torch.tensor([[[0.0, 5.0, 4.999, 1.0]]]), torch.tensor([[[0.0, 0.0, PI / 4, -PI / 4 - 1e-4]]]),
+                   5.0, FOV)
+    assert v[0, 0].tolist() == [False, False, True, False]
+
+
+def test_fov_two_pi_sees_all_within_range():
+    # Neighbours straight behind (bearing wrap(pi) = -pi), beside, ahead; one beyond 5 m.
+    position = torch.tensor([[[0.0, 0.0], [-2.0, 0.0], [0.0, 3.0], [1.0, 0.0], [0.0, -6.0]]])
+    nb = observe_neighbours(position, torch.zeros(1, 5), 5.0, 2 * PI)
+    assert nb.visible[0, 0].tolist() == [False, True, True, True, False]
+    assert nb.bearing[0, 0, 1].item() == pytest.approx(-PI)
+    # With phi_v = pi/2 only the one ahead.
+    assert observe_neighbours(position, torch.zeros(1, 5), 5.0, FOV).visible[0, 0].tolist() == [
+        False, False, False, True, False]
+
+
+def test_o_cam_ordering_padding_and_heading_difference():
+    # UAV 0 at the origin, heading 0; three UAVs ahead at 3, 1, 2 m, one behind (invisible).
+    position = torch.tensor([[[0.0, 0.0], [3.0, 0.0], [1.0, 0.0], [0.0, 0.0], [-1.0, 0.0]]])
+    position[0, 3] = torch.tensor([2 * math.cos(0.5), 2 * math.sin(0.5)])  # 2 m at bearing 0.5
+    heading = torch.tensor([[0.0, 0.5, -0.3, 3.0, 0.0]])
+    nb = observe_neighbours(position, heading, 5.0, FOV)
+    out = camera_observation(nb, 3, 5.0)
+    assert out.shape == (1, 5, 9)
+    # Ascending: UAV 2 (1 m, bearing 0, dphi = wrap(0 - (-0.3)) = 0.3 -> 0.3/pi = 0.095493),
+    #            UAV 3 (2 m, bearing 0.5 -> 0.159155, dphi = wrap(0 - 3.0) = -3.0 -> -0.954930),
+    #            UAV 1 (3 m, bearing 0, dphi = wrap(0 - 0.5) = -0.5 -> -0.159155).
+    expected = [1 / 5, 0.0, 0.3 / PI,
+                2 / 5, 0.5 / PI, -3.0 / PI,
+                3 / 5, 0.0, -0.5 / PI]
+    assert out[0, 0].tolist() == pytest.approx(expected, abs=1e-6)
+    # UAV 4 at (-1, 0), heading 0 sees UAV 0 (1 m, bearing 0), UAV 2 (2 m, bearing 0), UAV 3 at
+    # offset (1.755 + 1, 0.959) = (2.75517, 0.95885): sqrt(7.5910 + 0.9194) = 2.91725 m, bearing
+    # atan2(0.95885, 2.75517) = 0.33476 rad (< pi/4, visible), and UAV 1 at 4 m (4th, dropped).
+    # dphi = wrap(0 - phi_j): 0, wrap(0.3) = 0.3, wrap(-3.0) = -3.0.
+    d3, b3 = math.hypot(2 * math.cos(0.5) + 1, 2 * math.sin(0.5)), math.atan2(2 * math.sin(0.5), 2 * math.cos(0.5) + 1)
+    assert out[0, 4].tolist() == pytest.approx([0.2, 0.0, 0.0, 0.4, 0.0, 0.3 / PI,
+                                                d3 / 5, b3 / PI, -3.0 / PI], abs=1e-6)
+    # UAV 3 at (1.75517, 0.95885) facing 3.0 rad (almost -x):
+    #   UAV 0: offset (-1.75517, -0.95885), 2 m, world angle -(pi - 0.5) = -2.64159,
+    #          relative wrap(-2.64159 - 3.0) = wrap(-5.64159) = 0.64159 < 0.7854: visible;
+    #   UAV 4: 2.91725 m, world -2.80668, relative wrap(-5.80668) = 0.47650: visible;
+    #   UAV 2: world -2.23791, relative wrap(-5.23791) = 1.04527 > pi/4: not; UAV 1: 2.62684: not.
+    # dphi = wrap(3.0 - 0) = 3.0 for both. Ascending: UAV 0 (2 m), UAV 4 (2.917 m), then padding.
+    assert out[0, 3].tolist() == pytest.approx([2 / 5, 0.64159265 / PI, 3.0 / PI,
+                                                2.91724703 / 5, 0.47650198 / PI, 3.0 / PI,
+                                                1.0, 0.0, 0.0], abs=1e-6)
+
+
+def test_o_cam_padding_with_nobody_visible_and_fewer_uavs_than_slots():
+    # Two UAVs, the second behind the first: UAV 0 sees nobody -> [1, 0, 0] x 3.
+    position = torch.tensor([[[0.0, 0.0], [-1.0, 0.0]]])
+    nb = observe_neighbours(position, torch.zeros(1, 2), 5.0, FOV)
+    out = camera_observation(nb, 3, 5.0)
+    assert out[0, 0].tolist() == [1.0, 0.0, 0.0] * 3
+    # UAV 1 sees UAV 0 (1 m ahead, same heading) then two padded slots (only one other UAV exists).
+    assert out[0, 1].tolist() == pytest.approx([0.2, 0.0, 0.0] + [1.0, 0.0, 0.0] * 2)
+    # A single UAV: all padding.
+    nb1 = observe_neighbours(torch.zeros(1, 1, 2), torch.zeros(1, 1), 5.0, FOV)
+    assert camera_observation(nb1, 3, 5.0)[0, 0].tolist() == [1.0, 0.0, 0.0] * 3
+
+
+def test_heading_difference_sign_wraps():
+    # phi_i = 3.0, phi_j = -3.0: wrap(6.0) = 6 - 2 pi = -0.28319 -> /pi = -0.090140 (not 6/pi).
+    position = torch.tensor([[[0.0, 0.0], [1.0, 0.0]]])
+    nb = observe_neighbours(position, torch.tensor([[3.0, -3.0]]), 5.0, 2 * PI)
+    assert nb.heading_difference[0, 0, 1].item() == pytest.approx(6.0 - 2 * PI, abs=1e-6)
+    assert nb.heading_difference[0, 1, 0].item() == pytest.approx(2 * PI - 6.0, abs=1e-6)
+    out = camera_observation(nb, 3, 5.0)
+    assert out[0, 0, 2].item() == pytest.approx((6.0 - 2 * PI) / PI, abs=1e-6)
+
+
+# ---------------------------------------------------------------- o_g and s_c
+def test_goal_observation():
+    position = torch.tensor([[[70.0, 40.0], [0.0, 0.0], [0.0, 0.0]]])
+    heading = torch.tensor([[0.0, PI / 2, 0.0]])
+    goal = torch.tensor([[30.0, 40.0]])
+    out = goal_observation(position, heading, goal, 80.0)
+    # UAV 0: d = 40 -> 40/80 = 0.5; the goal is at world pi, heading 0 -> wrap(pi) = -pi -> -1.
+    assert out[0, 0].tolist() == pytest.approx([0.5, -1.0], abs=1e-6)
+    # UAV 1: offset (30, 40), d = 50 -> 0.625; angle atan2(40, 30) = 0.927295 - pi/2 = -0.643501 -> /pi = -0.204833
+    assert out[0, 1].tolist() == pytest.approx([0.625, (math.atan2(40, 30) - PI / 2) / PI], abs=1e-6)
+    # Far goal: d = 100 > 80 -> capped at 1.
+    far = goal_observation(torch.zeros(1, 1, 2), torch.zeros(1, 1), torch.tensor([[100.0, 0.0]]), 80.0)
+    assert far[0, 0].tolist() == pytest.approx([1.0, 0.0])
+
+
+def test_swarm_centre_state_circular_mean():
+    # Two UAVs at (0, 0) and (2, 0), headings pi - 0.1 and -pi + 0.1. Centre (1, 0), each 1 m away -> 1/5 = 0.2.
+    # phi_bar = circular mean = +-pi (NOT the arithmetic mean 0):
+    #   UAV 0: wrap(pi - 0.1 - pi) = -0.1 -> -0.031831 ; UAV 1: wrap(-pi + 0.1 - pi) = wrap(-2 pi + 0.1) = 0.1 -> 0.031831
+    # (with phi_bar = 0 they would be +-(pi - 0.1)/pi = +-0.968).
+    # alpha_c: UAV 0 looks at world 0 from heading pi - 0.1 -> wrap(-pi + 0.1) = -pi + 0.1 -> -0.968169;
+    #          UAV 1 looks at world pi from heading -pi + 0.1 -> wrap(2 pi - 0.1) = -0.1 -> -0.031831.
+    position = torch.tensor([[[0.0, 0.0], [2.0, 0.0]]])
+    heading = torch.tensor([[PI - 0.1, -PI + 0.1]])
+    out = swarm_centre_state(position, heading, 5.0)
+    assert out[0, 0].tolist() == pytest.approx([0.2, (-PI + 0.1) / PI, -0.1 / PI], abs=1e-5)
+    assert out[0, 1].tolist() == pytest.approx([0.2, -0.1 / PI, 0.1 / PI], abs=1e-5)
+    # d_c is capped at 1: UAVs 20 m apart -> 10 m from the centre -> min(10/5, 1) = 1.
+    far = swarm_centre_state(torch.tensor([[[0.0, 0.0], [20.0, 0.0]]]), torch.zeros(1, 2), 5.0)
+    assert far[0, :, 0].tolist() == [1.0, 1.0]
+
+
+def test_observation_and_state_layout_in_env(make_env, place):
+    # S1 (no obstacles: every beam is 10). UAV 0 at (10, 10) heading 0; UAV 1 2 m behind it at
+    # (8, 10), heading 0.5; goal (50, 10).
+    env = make_env("s1", n_uavs=2)
+    place(env, [[[10.0, 10.0], [8.0, 10.0]]], [[0.0, 0.5]], [[50.0, 10.0]])
+    obs, state = env.sensed["observation"][0], env.sensed["state"][0]
+    assert obs.shape == (2, 17) and state.shape == (2, 20)
+    o_scan = [1.0, 0.0, 1.0, 1 / 18, 1.0, 1 / 9]  # beams 0, 1, 2 all at 10
+    pad = [1.0, 0.0, 0.0]
+    # UAV 0: o_g = [40/80, 0]; camera (pi/2) sees nobody (UAV 1 is behind).
+    # s_cam (2 pi): UAV 1 at 2 m -> 0.4, bearing wrap(pi) = -pi -> -1, dphi wrap(0 - 0.5) = -0.5 -> -0.159155.
+    # s_c: centre (9, 10): 1 m -> 0.2; direction world pi -> -1; phi_bar = circmean(0, 0.5) = 0.25:
+    #      wrap(0 - 0.25)/pi = -0.079577.
+    assert obs[0].tolist() == pytest.approx([0.5, 0.0] + o_scan + pad * 3, abs=1e-6)
+    assert state[0].tolist() == pytest.approx(
+        [0.5, 0.0] + o_scan + [0.4, -1.0, -0.5 / PI] + pad * 2 + [0.2, -1.0, -0.25 / PI], abs=1e-6)
+    # UAV 1: o_g = [42/80 = 0.525, wrap(0 - 0.5)/pi = -0.159155]; camera sees UAV 0 2 m ahead at
+    # bearing -0.5 (|-0.5| < pi/4): [0.4, -0.159155, wrap(0.5 - 0)/pi = 0.159155];
+    # s_c: centre 1 m at world 0 -> [0.2, -0.5/pi, wrap(0.5 - 0.25)/pi = 0.079577].
+    cam1 = [0.4, -0.5 / PI, 0.5 / PI]
+    assert obs[1].tolist() == pytest.approx([0.525, -0.5 / PI] + o_scan + cam1 + pad * 2, abs=1e-6)
+    assert state[1].tolist() == pytest.approx(
+        [0.525, -0.5 / PI] + o_scan + cam1 + pad * 2 + [0.2, -0.5 / PI, 0.25 / PI], abs=1e-6)
+
+
+# ---------------------------------------------------------------- S4 noise
+def test_add_sensor_noise_statistics_and_clipping():
+    g = torch.Generator().manual_seed(0)
+    n = 64
+    beams = torch.full((4, n, 36), 5.0)
+    beams[..., 0] = 10.0  # at the range: noise may only lower it
+    beams[..., 1] = 0.0   # inside: noise may only raise it
+    dist = torch.full((4, n, n), 3.0)
+    dist[..., 0] = 0.0
+    nb = Neighbours(dist, torch.zeros(4, n, n), torch.full((4, n, n), PI - 0.01),
+                    torch.ones(4, n, n, dtype=torch.bool))
+    noisy_beams, noisy = add_sensor_noise(beams, nb, scan_std=0.1, distance_std=0.2, angle_std=0.05,
+                                          max_range=10.0, generator=g)
+    # Standard deviations 0.1 m (beams), 0.2 m (distance), 0.05 rad (bearing), within ~5 %.
+    assert (noisy_beams[..., 2:] - 5.0).std().item() == pytest.approx(0.1, rel=0.05)
+    assert (noisy.distance[..., 1:] - 3.0).std().item() == pytest.approx(0.2, rel=0.05)
+    assert noisy.bearing.std().item() == pytest.approx(0.05, rel=0.05)
+    assert (noisy_beams[..., 0] <= 10.0).all() and (noisy_beams[..., 0] < 10.0).any()
+    assert (noisy_beams[..., 1] >= 0.0).all() and (noisy_beams[..., 1] > 0.0).any()
+    assert (noisy.distance >= 0).all()
+    # The heading difference near pi stays wrapped into [-pi, pi).
+    assert (noisy.heading_difference >= -PI).all() and (noisy.heading_difference < PI).all()
+    assert (noisy.heading_difference < 0).any()
+    # Visibility (detection) is never perturbed.
+    assert torch.equal(noisy.visible, nb.visible)
+
+
+def test_s4_noise_reaches_observation_not_state_reward_or_metrics(make_env):
+    clean, noisy = make_env("train", num_envs=2, seed=3), make_env("s4", num_envs=2, seed=3)
+    # Same seed, same spawn (the noise is drawn after the layout).
+    assert torch.equal(clean.position, noisy.position)
+    assert not torch.equal(clean.sensed["observation"], noisy.sensed["observation"])
+    assert torch.equal(clean.sensed["state"], noisy.sensed["state"])
+    td_c, td_n = clean._output(), noisy._output()
+    action = torch.rand(2, 5, 2, generator=torch.Generator().manual_seed(1)) * 2 - 1
+    td_c["agents", "action"] = action
+    td_n["agents", "action"] = action.clone()
+    out_c, out_n = clean.step(td_c)["next"], noisy.step(td_n)["next"]
+    assert torch.equal(out_c["agents", "state"], out_n["agents", "state"])
+    assert torch.equal(out_c["agents", "reward"], out_n["agents", "reward"])
+    assert torch.equal(out_c["done"], out_n["done"])
+    for key in ("d_min_obs", "d_min_uav", "d_c", "v_error", "phi_error", "speed"):
+        assert torch.equal(out_c["episode", key], out_n["episode", key]), key
+    assert not torch.equal(out_c["agents", "observation"], out_n["agents", "observation"])
+
+
+def test_s4_noise_reaches_the_instinct(make_env, place):
+    # Two UAVs 1.5 m apart, UAV 1 ahead of UAV 0: the repulsion uses the (noisy) camera.
+    layout = ([[[40.0, 10.0], [41.5, 10.0]]], [[0.0, 0.0]], [[40.0, 70.0]])
+    clean = place(make_env("s1", n_uavs=2, instinct=True), *layout)
+    noisy = place(make_env("s1", n_uavs=2, instinct=True, noise=True), *layout)
+    assert not torch.allclose(clean.sensed["instinct_command"][0, 0], noisy.sensed["instinct_command"][0, 0])
