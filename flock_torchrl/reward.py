@@ -16,9 +16,11 @@ def goal_reward(d_goal: torch.Tensor, d_goal_prev: torch.Tensor, alpha_goal: tor
 
 def collision_reward(d: torch.Tensor) -> torch.Tensor:
     """``r_c`` (Eq. 23): -0.2 on (2, 3], -0.5 on (0.5, 2], -1 on [0, 0.5], else 0."""
+    # Levels built in d's dtype: scalar branches of torch.where would be float32 (-0.2 -> -0.200000003).
+    zero = torch.zeros_like(d)
     return torch.where(
-        d <= 0.5, -1.0, torch.where(d <= 2.0, -0.5, torch.where(d <= 3.0, -0.2, 0.0))
-    ).to(d.dtype)
+        d <= 0.5, zero - 1.0, torch.where(d <= 2.0, zero - 0.5, torch.where(d <= 3.0, zero - 0.2, zero))
+    )
 
 
 def flocking_reward(heading_deviation: torch.Tensor, d_centre: torch.Tensor) -> torch.Tensor:
