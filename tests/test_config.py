@@ -1,0 +1,152 @@
+"""config.py: every YAML composes against ScenarioConfig; bad values fail at construction, naming the field."""
+
+import dataclasses
+import math
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from flock_torchrl import ConfigError, FlockingEnv, ScenarioConfig, available_scenarios, load_scenario
+from flock_torchrl.config import CONF_DIR, SCENARIO_FIELDS
+
+SCENARIOS = ["train", "s1", "s2", "s3", "s4", "s5", "tau_v"]
+
+
+def test_all_scenarios_are_available():
+    assert set(SCENARIOS) <= set(available_scenarios())
+
+
+def test_train_yaml_has_every_field_and_no_other():
+    # The training YAML spells out the whole world: no field of the dataclass is missing, none is extra.
+    keys = set(OmegaConf.load(CONF_DIR / "scenario" / "train.yaml").keys())
+    assert keys == SCENARIO_FIELDS
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_each_yaml_composes_against_the_dataclass(name):
+    cfg = load_scenario(name)
+    assert isinstance(cfg, ScenarioConfig) and cfg.name == name
+    own = OmegaConf.load(CONF_DIR / "scenario" / f"{name}.yaml")
+    assert set(own.keys()) - {"defaults"} <= SCENARIO_FIELDS
+
+
+def test_training_defaults_match_spec():
+    cfg = load_scenario("train")
+    # SPEC 1 table and obstacle decision.
+    assert (cfg.n_uavs, cfg.dt, cfg.max_steps, cfg.tau_v, cfg.v_max) == (5, 0.2, 500, 1.0, 3.0)
+    assert (cfg.goal_radius, cfg.collision_distance) == (1.0, 0.5)
+    assert (cfg.camera_range, cfg.n_beams, cfg.laser_range, cfg.goal_scale) == (5.0, 36, 10.0, 80.0)
+    assert cfg.fov == pytest.approx(0.5 * math.pi)
+    assert (cfg.rep_gain, cfg.rep_range, cfg.safe_distance) == (1.0, 5.0, 2.0)
+    assert cfg.circles == [[40.0, 40.0, 6.0]]
+    assert cfg.rectangles == [[10.0, 40.0, 6.0, 16.0], [70.0, 40.0, 6.0, 16.0]]
+    assert (cfg.d_env, cfg.spawn_radius, cfg.uav_collision_terminates) == (40.0, 3.0, False)
+    # The YAML and the dataclass defaults agree field by field (no drift).
+    assert dataclasses.asdict(cfg) == dataclasses.asdict(ScenarioConfig())
+
+
+def test_scenario_table():
+    # SPEC 6.
+    assert load_scenario("s1").circles == [] and load_scenario("s1").rectangles == []
+    assert load_scenario("s2").n_uavs == 9
+    s3 = load_scenario("s3")
+    assert s3.d_env == 60.0
+    assert sorted(map(tuple, s3.circles)) == sorted([(40.0, 40.0, 6.0), (15.0, 15.0, 5.0), (15.0, 65.0, 5.0),
+                                                     (65.0, 15.0, 5.0), (65.0, 65.0, 5.0)])
+    assert sorted(map(tuple, s3.rectangles)) == sorted([(10.0, 40.0, 6.0, 16.0), (70.0, 40.0, 6.0, 16.0),
+                                                        (40.0, 10.0, 16.0, 6.0), (40.0, 70.0, 16.0, 6.0)])
+    s4 = load_scenario("s4")
+    assert s4.noise and (s4.noise_scan, s4.noise_distance, s4.noise_angle) == (0.1, 0.2, 0.05)
+    s5 = load_scenario("s5")
+    assert (s5.n_moving, s5.moving_radius, s5.moving_speed) == (2, 3.0, 0.5)
+    assert load_scenario("tau_v", tau_v=0.2).tau_v == 0.2
+
+
+def test_overrides_and_other_sources():
+    cfg = load_scenario("train", fov=2 * math.pi, instinct=True, n_uavs=9)
+    assert (cfg.fov, cfg.instinct, cfg.n_uavs) == (2 * math.pi, True, 9)
+    assert load_scenario({"n_uavs": 3}).n_uavs == 3
+    assert load_scenario(OmegaConf.create({"name": "x", "dt": 0.1})).dt == 0.1
+    assert load_scenario(ScenarioConfig(n_uavs=4)).n_uavs == 4
+    assert load_scenario("S2").n_uavs == 9  # case-insensitive names
+
+
+# ---------------------------------------------------------------- bad inputs
+BAD = [
+    (dict(n_uavs=0), "n_uavs"),
+    (dict(n_uavs=-3), "n_uavs"),
+    (dict(n_uavs=60), "n_uavs"),                        # infeasible spawn density: refused, not hung
+    (dict(fov=0.0), "fov"),
+    (dict(fov=-1.0), "fov"),
+    (dict(fov=2 * math.pi + 0.01), "fov"),
+    (dict(fov=float("nan")), "fov"),
+    (dict(dt=0.0), "dt"),
+    (dict(dt=-0.2), "dt"),
+    (dict(dt=float("inf")), "dt"),
+    (dict(tau_v=0.0), "tau_v"),
+    (dict(tau_v=-1.0), "tau_v"),
+    (dict(v_max=0.0), "v_max"),
+    (dict(camera_range=0.0), "camera_range"),
+    (dict(max_steps=0), "max_steps"),
+    (dict(n_scan=37), "n_scan"),
+    (dict(collision_reward_source="lidar"), "collision_reward_source"),
+    (dict(action_mode="torque"), "action_mode"),
+    (dict(circles=[[40.0, 40.0, 6.0], [45.0, 40.0, 2.0]]), "circles"),          # circle-circle overlap
+    (dict(circles=[[14.0, 40.0, 2.0]]), "circles"),                            # circle inside rect x in [7, 13] +2
+    (dict(rectangles=[[10.0, 40.0, 6.0, 16.0], [14.0, 40.0, 4.0, 4.0]]), "rectangles"),  # rect-rect overlap
+    (dict(circles=[[40.0, 40.0, -1.0]]), "circles"),
+    (dict(rectangles=[[10.0, 40.0, 0.0, 16.0]]), "rectangles"),
+    (dict(safe_distance=-1.0), "safe_distance"),
+    (dict(n_moving=-1), "n_moving"),
+    (dict(n_moving=1, moving_box=[70.0, 10.0]), "moving_box"),
+]
+
+
+@pytest.mark.parametrize("overrides, field", BAD, ids=[f"{f}-{i}" for i, (_, f) in enumerate(BAD)])
+def test_bad_values_raise_naming_the_field(overrides, field):
+    with pytest.raises(ConfigError, match=field):
+        load_scenario("train", **overrides)
+    # ... and FlockingEnv refuses them at construction (ConfigError is a ValueError).
+    with pytest.raises(ValueError, match=field):
+        FlockingEnv("train", **overrides)
+
+
+def test_circles_that_just_touch_are_allowed():
+    # Centres 12 m apart with radii 6 + 6 = 12: touching, not overlapping.
+    assert len(load_scenario("train", circles=[[40.0, 40.0, 6.0], [52.0, 40.0, 6.0]]).circles) == 2
+
+
+def test_unknown_scenario_and_unknown_field():
+    with pytest.raises(ConfigError, match="unknown scenario 'nowhere'"):
+        load_scenario("nowhere")
+    with pytest.raises(ConfigError, match="wind_speed"):
+        load_scenario("train", wind_speed=3.0)
+    with pytest.raises(ConfigError, match="wind_speed"):
+        load_scenario({"wind_speed": 3.0})
+    with pytest.raises(ValueError, match="nowhere"):
+        FlockingEnv("nowhere")
+    with pytest.raises(ValueError, match="wind_speed"):
+        FlockingEnv("train", wind_speed=3.0)
+
+
+def test_wrong_type_names_the_field():
+    with pytest.raises(ConfigError, match="n_uavs"):
+        load_scenario("train", n_uavs="five")
+
+
+def test_bad_num_envs():
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="num_envs"):
+            FlockingEnv("train", num_envs=bad)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_actions_raise_at_step(make_env, bad):
+    env = make_env("train", num_envs=2)
+    td = env.reset()
+    action = torch.zeros(2, 5, 2)
+    action[1, 3, 0] = bad
+    td["agents", "action"] = action
+    with pytest.raises(ValueError, match="action"):
+        env.step(td)
