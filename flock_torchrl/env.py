@@ -241,6 +241,9 @@ class FlockingEnv(EnvBase):
             mask = tensordict.get("_reset").reshape(self.num_envs).to(self.device)
         if mask is not None and not mask.any() and self.sensed:
             return self._output()
+        if getattr(self, "_restored", False) and mask is None:
+            self._restored = False
+            return self._output()
         full = mask is None or bool(mask.all()) or not self.sensed
         layout = sample_layout(self.cfg, self.num_envs, self._static, self._generator, self.device)
         fresh_acc = new_accumulator(self.num_envs, self.device)
@@ -320,12 +323,38 @@ class FlockingEnv(EnvBase):
         terminated = reached | crashed
         if cfg.uav_collision_terminates:
             terminated = terminated | (stats["uav"] < cfg.collision_distance)
-        update_episode(self.accumulator, stats, reached, crashed, cfg.dt)
+        update_episode(self.accumulator, stats, reached, crashed, cfg.dt, reward.mean(-1))
         self.terminated = terminated[:, None]
         self.truncated = (self.accumulator["steps"] >= cfg.max_steps)[:, None] & ~self.terminated
         out = self._output()
         out.set(("agents", "reward"), reward[..., None])
         return out
+
+    # ------------------------------------------------------------------ exact resume
+    _STATE_KEYS = ("position", "velocity", "heading", "goal", "moving_position", "moving_velocity", "command",
+                   "used_instinct", "prev_action", "has_prev_action", "terminated", "truncated")
+
+    def get_state(self) -> dict:
+        """Everything needed to continue these episodes bit for bit (plain tensors and dicts)."""
+        return {
+            **{k: getattr(self, k).clone() for k in self._STATE_KEYS},
+            "accumulator": self.accumulator.to_dict(),
+            "sensed": {k: v.clone() for k, v in self.sensed.items()},
+            "generator": self._generator.get_state(),
+        }
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`; the next full ``reset()`` returns the restored episodes
+        instead of drawing new ones (so a collector built afterwards continues them)."""
+        for k in self._STATE_KEYS:
+            current = getattr(self, k)
+            if tuple(state[k].shape) != tuple(current.shape):
+                raise ValueError(f"env state {k!r} has shape {tuple(state[k].shape)}, this env {tuple(current.shape)}")
+            setattr(self, k, state[k].to(current.device, current.dtype))
+        self.accumulator = TensorDict(state["accumulator"], batch_size=[self.num_envs], device=self.device)
+        self.sensed = {k: v.to(self.device) for k, v in state["sensed"].items()}
+        self._generator.set_state(state["generator"])
+        self._restored = True
 
     def _set_seed(self, seed: int | None) -> None:
         if seed is None:

@@ -14,7 +14,7 @@ from tensordict import TensorDict
 from .geometry import circular_mean, pairwise, wrap
 
 METRIC_KEYS = ("success", "safe_success", "reached", "crashed", "d_min_obs", "d_min_uav", "d_c",
-               "v_error", "phi_error", "speed", "t_goal", "steps")
+               "v_error", "phi_error", "speed", "t_goal", "steps", "return")
 OBSTACLE_DISTANCE_CAP = 10.0
 
 
@@ -59,6 +59,7 @@ def new_accumulator(batch: int, device=None, dtype=torch.float32) -> TensorDict:
         {
             "steps": torch.zeros(batch, device=device, dtype=torch.long),
             "sum_d_c": zeros(), "sum_v_error": zeros(), "sum_phi_error": zeros(), "sum_speed": zeros(),
+            "return": zeros(),
             "d_min_obs": torch.full((batch,), OBSTACLE_DISTANCE_CAP, device=device, dtype=dtype),
             "d_min_uav": torch.full((batch,), math.inf, device=device, dtype=dtype),
             "reached": torch.zeros(batch, device=device, dtype=torch.bool),
@@ -71,12 +72,15 @@ def new_accumulator(batch: int, device=None, dtype=torch.float32) -> TensorDict:
 
 
 def update_episode(acc: TensorDict, stats: dict[str, torch.Tensor], reached: torch.Tensor,
-                   crashed: torch.Tensor, dt: float) -> TensorDict:
+                   crashed: torch.Tensor, dt: float, reward: torch.Tensor | None = None) -> TensorDict:
     """Fold one step into the accumulators (in place) and return them.
 
     Args:
-        stats: from :func:`step_statistics`; reached / crashed: ``[B]`` this step's events.
+        stats: from :func:`step_statistics`; reached / crashed: ``[B]`` this step's events;
+        reward: ``[B]`` the step's reward averaged over the UAVs (summed into ``return``).
     """
+    if reward is not None:
+        acc["return"] = acc["return"] + reward
     steps = acc["steps"] + 1
     acc["steps"] = steps
     for name in ("d_c", "v_error", "phi_error", "speed"):
@@ -95,7 +99,8 @@ def episode_summary(acc: TensorDict, collision_distance: float) -> TensorDict:
 
     ``success``: goal reached, no crash. ``safe_success``: success and no UAV pair ever closer
     than ``collision_distance``. Means are over the steps taken (0 before the first step);
-    ``t_goal`` is NaN for an episode that has not reached the goal.
+    ``t_goal`` is NaN for an episode that has not reached the goal; ``return`` is the
+    undiscounted episode reward averaged over the UAVs.
     """
     steps = acc["steps"].clamp_min(1).to(acc["sum_d_c"].dtype)
     success = acc["reached"] & ~acc["crashed"]
@@ -113,6 +118,7 @@ def episode_summary(acc: TensorDict, collision_distance: float) -> TensorDict:
             "speed": acc["sum_speed"] / steps,
             "t_goal": acc["t_goal"].clone(),
             "steps": acc["steps"].clone(),
+            "return": acc["return"].clone(),
         },
         batch_size=acc.batch_size,
         device=acc.device,

@@ -1,0 +1,140 @@
+"""The learning pipeline end to end on the `tiny` experiment (seconds per run)."""
+
+import pickle
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from flock_torchrl import FlockingEnv, load_policy
+from flock_torchrl.checkpoint import CheckpointError, load_checkpoint
+from flock_torchrl.trainer import make_train_config, train
+
+
+def tiny(tmp_path, policy="policy3_g", name="run", **overrides):
+    return make_train_config(policy, "tiny", logger="csv", run_dir=str(tmp_path / name), seed=0,
+                             overrides=overrides)
+
+
+@pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyd_g", "ddpg"), ("policyp_g", "ppo")])
+def test_tiny_run_of_each_learner(tmp_path, policy, algo):
+    result = train(tiny(tmp_path, policy))
+    ckpt = load_checkpoint(result.checkpoint)
+    assert ckpt["meta"]["algo"] == algo and ckpt["meta"]["policy_id"] == policy
+    assert ckpt["counters"]["frames"] >= 160 and ckpt["counters"]["updates"] > 0
+    assert set(ckpt) >= {"actor", "learner", "counters", "rng", "env_state", "meta", "config"}
+    if algo != "ppo":
+        assert ckpt["buffer"]["_storage"]["_len"] > 0
+        assert any(k.startswith("opt_") for k in ckpt["learner"])
+    else:
+        assert "optimizer" in ckpt["learner"]
+    # evaluation metrics appear, in the checkpoint and in the logs
+    assert result.evaluations, "no evaluation ran"
+    for key in ("success", "safe_success", "d_min_obs", "d_min_uav", "d_c", "v_error", "phi_error", "speed"):
+        assert key in result.evaluations[-1]
+    assert (result.run_dir / "episodes.csv").is_file()
+    assert (result.run_dir / "config.yaml").is_file()
+    # the shipped-policy loader returns a module ready for env.rollout, for any N
+    policy_module = load_policy(result.checkpoint)
+    for scenario in ("train", "s2"):
+        env = FlockingEnv(scenario, num_envs=2, seed=1, **policy_module.flock_meta["env"])
+        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+            td = env.rollout(5, policy_module)
+        assert td["agents", "action"].shape == (2, 5, env.n_agents, 2)
+        assert td["agents", "action"].abs().max() <= 1
+
+
+def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
+    whole = train(tiny(tmp_path, name="whole"))
+    part = make_train_config("policy3_g", "tiny", logger="none", run_dir=str(tmp_path / "split"), seed=0,
+                             overrides={"experiment.max_frames": 96})
+    first = train(part)
+    assert first.frames == 96
+    rest = OmegaConf.merge(part, {"resume": True, "experiment": {"max_frames": 160}})
+    resumed = train(rest)
+    a = load_checkpoint(whole.checkpoint)
+    b = load_checkpoint(resumed.checkpoint)
+    assert a["counters"]["frames"] == b["counters"]["frames"]
+    assert a["counters"]["updates"] == b["counters"]["updates"]
+    assert a["counters"]["episodes"] == b["counters"]["episodes"]
+    for key, value in a["actor"].items():
+        assert torch.equal(value, b["actor"][key]), key
+    assert torch.equal(a["learner"]["loss"]["log_alpha"], b["learner"]["loss"]["log_alpha"])
+    # the episode log has no duplicate rows after the resume
+    lines = (tmp_path / "split" / "episodes.csv").read_text().splitlines()[1:]
+    assert [int(r.split(",")[0]) for r in lines] == list(range(1, len(lines) + 1))
+
+
+def test_resume_without_checkpoint_is_refused(tmp_path):
+    cfg = tiny(tmp_path)
+    cfg.resume = True
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        train(cfg)
+
+
+def test_fresh_run_never_overwrites_an_existing_checkpoint(tmp_path):
+    result = train(tiny(tmp_path))
+    before = result.checkpoint.read_bytes()
+    with pytest.raises(CheckpointError, match="already holds a checkpoint"):
+        train(tiny(tmp_path))
+    assert result.checkpoint.read_bytes() == before
+
+
+def test_mismatched_checkpoint_is_refused(tmp_path):
+    result = train(tiny(tmp_path))
+    before = result.checkpoint.read_bytes()
+    other = tiny(tmp_path, policy="policy3")  # critic on the observation, same folder
+    other.resume = True
+    with pytest.raises(CheckpointError, match="critic_input|policy"):
+        train(other)
+    assert result.checkpoint.read_bytes() == before
+
+
+def test_corrupted_checkpoint_is_refused(tmp_path):
+    path = tmp_path / "last.pt"
+    path.write_bytes(b"\x80\x04not a checkpoint")
+    with pytest.raises(CheckpointError, match="corrupted"):
+        load_policy(path)
+
+
+class _Boom:
+    def __reduce__(self):
+        return (print, ("this must never run",))
+
+
+def test_checkpoint_with_code_never_runs(tmp_path, capsys):
+    path = tmp_path / "evil.pt"
+    torch.save({"format": "flock_torchrl/checkpoint-v1", "payload": _Boom()}, path)
+    with pytest.raises(CheckpointError):
+        load_checkpoint(path)
+    assert "this must never run" not in capsys.readouterr().out
+
+
+def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
+    from torchrl.data import TensorDictReplayBuffer
+
+    cfg = tiny(tmp_path, **{"experiment.max_frames": 400})
+    calls = {"n": 0}
+    original = TensorDictReplayBuffer.sample
+
+    def poisoned(self, *args, **kwargs):
+        batch = original(self, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] > 40:  # after the first periodic checkpoint (64 frames)
+            batch.set(("next", "agents", "reward"), torch.full_like(batch["next", "agents", "reward"], float("nan")))
+        return batch
+
+    monkeypatch.setattr(TensorDictReplayBuffer, "sample", poisoned)
+    with pytest.raises(FloatingPointError, match="loss"):
+        train(cfg)
+    kept = load_checkpoint(tmp_path / "run")
+    assert 0 < kept["counters"]["frames"] < 400
+    for value in kept["actor"].values():
+        assert torch.isfinite(value).all()
+
+
+def test_unpicklable_junk_in_checkpoint_dir_is_a_clear_error(tmp_path):
+    (tmp_path / "last.pt").write_bytes(pickle.dumps({"format": "something else"}))
+    with pytest.raises(CheckpointError):
+        load_checkpoint(tmp_path)
