@@ -1,0 +1,260 @@
+"""FlockingEnv as a TorchRL env: specs, shapes, spawn (Eq. 30), S5, termination, partial reset, seeding."""
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from flock_torchrl import FlockingEnv
+from flock_torchrl.geometry import distance_to_obstacles, Obstacles
+
+PI = math.pi
+SCENARIOS = ["train", "s1", "s2", "s3", "s4", "s5", "tau_v"]
+
+
+def zero_policy(td):
+    """Deterministic policy: a = [0, 0] (speed 2 along the heading) for every UAV."""
+    shape = td["agents", "observation"].shape[:-1]
+    td.set(("agents", "action"), torch.zeros(*shape, 2))
+    return td
+
+
+@pytest.mark.parametrize("num_envs", [1, 3])
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_check_env_specs(scenario, num_envs):
+    torch.manual_seed(0)
+    check_env_specs(FlockingEnv(scenario, num_envs=num_envs, seed=0))
+
+
+@pytest.mark.parametrize("scenario, n", [("train", 5), ("s2", 9), ("s5", 5)])
+def test_rollout_shapes_and_keys(scenario, n):
+    b, t = 2, 4
+    torch.manual_seed(0)
+    env = FlockingEnv(scenario, num_envs=b, seed=0)
+    td = env.rollout(t)
+    assert td.batch_size == (b, t)
+    assert td["agents", "observation"].shape == (b, t, n, 17)
+    assert td["agents", "state"].shape == (b, t, n, 20)
+    assert td["agents", "action"].shape == (b, t, n, 2)
+    assert td["next", "agents", "reward"].shape == (b, t, n, 1)
+    assert td["next", "done"].shape == (b, t, 1)
+    assert td["next", "terminated"].shape == td["next", "truncated"].shape == (b, t, 1)
+    nxt = td["next"]
+    assert nxt["agents", "position"].shape == nxt["agents", "velocity"].shape == (b, t, n, 2)
+    assert nxt["agents", "heading"].shape == (b, t, n)
+    assert nxt["agents", "command"].shape == (b, t, n, 2)
+    assert nxt["agents", "instinct"].shape == (b, t, n) and nxt["agents", "instinct"].dtype == torch.bool
+    assert nxt["agents", "scan"].shape == (b, t, n, 36)
+    assert nxt["goal"].shape == (b, t, 2)
+    for key in ("success", "safe_success", "d_min_obs", "d_min_uav", "d_c", "v_error", "phi_error", "speed",
+                "t_goal", "steps"):
+        assert nxt["episode", key].shape == (b, t), key
+    assert nxt["episode", "steps"][0].tolist() == [1, 2, 3, 4]
+    if scenario == "s5":
+        assert nxt["obstacles", "position"].shape == (b, t, 2, 2)
+    else:
+        assert "obstacles" not in nxt.keys()
+    # Every observation and state value lies in [-1, 1].
+    assert td["agents", "observation"].abs().max() <= 1 and td["agents", "state"].abs().max() <= 1
+
+
+def test_spawn_follows_eq30(make_env):
+    env = make_env("train", num_envs=64, seed=1)
+    centre = torch.tensor([40.0, 40.0])
+    # Goal at chi + pi: goal - (40, 40) = -(swarm centre - (40, 40)), both d_env = 40 from the middle.
+    goal_dir = env.goal - centre
+    assert torch.allclose(torch.linalg.vector_norm(goal_dir, dim=-1), torch.full((64,), 40.0), atol=1e-4)
+    swarm = centre - goal_dir                                     # [B, 2]
+    offset = torch.linalg.vector_norm(env.position - swarm[:, None], dim=-1)
+    assert (offset <= 3.0 + 1e-4).all()                           # inside the 3 m disc
+    d = torch.linalg.vector_norm(env.position[:, :, None] - env.position[:, None], dim=-1)
+    d = d + torch.eye(5) * 100
+    assert (d >= 1.0).all()                                       # >= 1 m apart
+    obstacles = env.obstacles()
+    assert (distance_to_obstacles(env.position, obstacles).amin(-1) >= 1.0).all()  # >= 1 m from obstacles
+    assert torch.equal(env.velocity, torch.zeros_like(env.velocity))
+    assert (env.heading >= -PI).all() and (env.heading < PI).all()
+    # chi is uniform: the goals do not all fall on one side.
+    assert (goal_dir[:, 0] > 0).any() and (goal_dir[:, 0] < 0).any()
+    # S3 uses d_env = 60.
+    s3 = make_env("s3", num_envs=8, seed=1)
+    assert torch.allclose(torch.linalg.vector_norm(s3.goal - centre, dim=-1), torch.full((8,), 60.0), atol=1e-4)
+
+
+def test_s5_moving_circles(make_env, place, step_with):
+    env = make_env("s5", num_envs=16, seed=2)
+    start = env.moving_position.clone()
+    assert start.shape == (16, 2, 2)
+    assert ((start >= 10) & (start <= 70)).all()                # starts in [10, 70]^2
+    static = Obstacles(env._static.circles.expand(16, -1, -1), env._static.rectangles.expand(16, -1, -1))
+    assert (distance_to_obstacles(start, static).amin(-1) >= 3.0).all()    # radius 3, clear of static ones
+    gap = torch.linalg.vector_norm(start[:, :, None] - env.position[:, None], dim=-1).amin(-1)
+    assert (gap >= 8.0).all()                                     # >= 8 m from the swarm
+    assert (torch.linalg.vector_norm(start - env.goal[:, None], dim=-1) >= 8.0).all()  # ... and the goal
+    speed = torch.linalg.vector_norm(env.moving_velocity, dim=-1)
+    assert torch.allclose(speed, torch.full_like(speed, 0.5))
+    td = env._output()
+    td["agents", "action"] = torch.zeros(16, 5, 2)
+    out = env.step(td)["next"]
+    # 0.5 m/s for 0.2 s: 0.1 m per step (no reflection that close to the start box).
+    moved = torch.linalg.vector_norm(out["obstacles", "position"] - start, dim=-1)
+    assert torch.allclose(moved, torch.full_like(moved, 0.1), atol=1e-5)
+    # The laser sees the moving circles: one at (20, 20), r 3, UAV at (10, 20) facing +x -> 20 - 3 - 10 = 7.
+    env = make_env("s5", num_envs=1, seed=2)
+    env.moving_position = torch.tensor([[[20.0, 20.0], [60.0, 70.0]]])
+    place(env, [[[10.0, 20.0], [10.0, 5.0], [5.0, 5.0], [5.0, 10.0], [2.0, 2.0]]], [[0.0] * 5], [[70.0, 70.0]])
+    assert env.sensed["scan"][0, 0, 0].item() == pytest.approx(7.0, abs=1e-5)
+    assert env.sensed["scan_obstacle"][0, 0, 0].item() == 1   # static circle 0, then the moving ones
+
+
+def test_s5_circles_reflect_off_the_box(make_env):
+    env = make_env("s5", num_envs=1, seed=0)
+    env.moving_position = torch.tensor([[[79.95, 40.0], [40.0, 0.02]]])
+    env.moving_velocity = torch.tensor([[[0.5, 0.0], [0.0, -0.5]]])
+    td = env._output()
+    td["agents", "action"] = torch.zeros(1, 5, 2)
+    env.step(td)
+    # 79.95 + 0.1 = 80.05 -> 2 * 80 - 80.05 = 79.95, vx -> -0.5; 0.02 - 0.1 = -0.08 -> 0.08, vy -> 0.5.
+    assert env.moving_position[0].tolist() == [pytest.approx([79.95, 40.0], abs=1e-4),
+                                               pytest.approx([40.0, 0.08], abs=1e-5)]
+    assert env.moving_velocity[0].tolist() == [[-0.5, 0.0], [0.0, 0.5]]
+
+
+# ---------------------------------------------------------------- termination
+def test_goal_reached_terminates(make_env, place, step_with):
+    # UAV 0 at (10, 10) facing +x, goal (11, 10): after a = [0, 0] it is at 10.08, d_g = 0.92 < 1.
+    env = place(make_env("s1", n_uavs=2), [[[10.0, 10.0], [10.0, 20.0]]], [[0.0, 0.0]], [[11.0, 10.0]])
+    out = step_with(env, [[[0.0, 0.0], [0.0, 0.0]]])
+    assert out["terminated"].tolist() == [[True]] and out["done"].tolist() == [[True]]
+    assert out["truncated"].tolist() == [[False]]
+    ep = out["episode"]
+    assert ep["reached"].tolist() == [True] and ep["success"].tolist() == [True]
+    assert ep["t_goal"].item() == pytest.approx(0.2)   # first step: 1 * dt
+    # 1.1 m away after the step (goal (11.18, 10)): not reached.
+    env = place(make_env("s1", n_uavs=2), [[[10.0, 10.0], [10.0, 20.0]]], [[0.0, 0.0]], [[11.18, 10.0]])
+    assert step_with(env, [[[0.0, 0.0], [0.0, 0.0]]])["done"].tolist() == [[False]]
+
+
+def test_crash_uses_true_distance_not_the_laser(make_env, place, step_with):
+    # A tiny circle (r 0.01) 0.46 m from the UAV at bearing 5 deg, between two beams: every beam misses
+    # it (closest approach 0.46 sin 5 deg = 0.040 > 0.01), yet the true distance 0.46 - 0.01 = 0.45 < 0.5.
+    # Velocity mode with a zero command: nothing moves.
+    c = [10.0 + 0.46 * math.cos(PI / 36), 10.0 + 0.46 * math.sin(PI / 36)]
+    env = make_env("s1", n_uavs=1, circles=[[c[0], c[1], 0.01]], action_mode="velocity")
+    place(env, [[[10.0, 10.0]]], [[0.0]], [[70.0, 70.0]])
+    assert torch.equal(env.sensed["scan"], torch.full((1, 1, 36), 10.0))
+    out = step_with(env, [[[0.0, 0.0]]])
+    assert out["terminated"].tolist() == [[True]]
+    assert out["episode", "crashed"].tolist() == [True] and out["episode", "success"].tolist() == [False]
+    assert out["episode", "d_min_obs"].item() == pytest.approx(0.45, abs=1e-5)
+
+
+def test_crash_threshold_in_the_training_world(make_env, place, step_with):
+    # Circle (40, 40) r 6, surface at x = 34. Facing +x from 33.5: 33.58 -> 0.42 < 0.5: crash.
+    env = place(make_env("train", n_uavs=1), [[[33.5, 40.0]]], [[0.0]], [[40.0, 80.0]])
+    assert step_with(env, [[[0.0, 0.0]]])["terminated"].tolist() == [[True]]
+    # Facing -x from 33.5: 33.42 -> 0.58 >= 0.5: no crash.
+    env = place(make_env("train", n_uavs=1), [[[33.5, 40.0]]], [[PI]], [[40.0, 80.0]])
+    assert step_with(env, [[[0.0, 0.0]]])["terminated"].tolist() == [[False]]
+
+
+def test_truncation_at_max_steps(make_env):
+    env = FlockingEnv("s1", num_envs=2, seed=0, max_steps=3)
+    td = env.rollout(3, policy=zero_policy)
+    assert td["next", "truncated"][:, :, 0].tolist() == [[False, False, True]] * 2
+    assert td["next", "terminated"][:, :, 0].tolist() == [[False, False, False]] * 2
+    assert td["next", "done"][:, :, 0].tolist() == [[False, False, True]] * 2
+
+
+def test_uav_contact_terminates_only_when_configured(make_env, place, step_with):
+    # Two UAVs 0.3 m apart, velocity mode, zero command: they stay 0.3 < 0.5 apart.
+    layout = ([[[10.0, 10.0], [10.3, 10.0]]], [[0.0, 0.0]], [[70.0, 70.0]])
+    env = place(make_env("s1", n_uavs=2, action_mode="velocity"), *layout)
+    out = step_with(env, [[[0.0, 0.0], [0.0, 0.0]]])
+    assert out["done"].tolist() == [[False]]
+    assert out["episode", "d_min_uav"].item() == pytest.approx(0.3, abs=1e-5)
+    env = place(make_env("s1", n_uavs=2, action_mode="velocity", uav_collision_terminates=True), *layout)
+    out = step_with(env, [[[0.0, 0.0], [0.0, 0.0]]])
+    assert out["terminated"].tolist() == [[True]] and out["done"].tolist() == [[True]]
+
+
+def test_done_is_per_env(make_env, place, step_with):
+    # B = 2: only env 0 has its goal within reach.
+    env = make_env("s1", num_envs=2, n_uavs=1)
+    place(env, [[[10.0, 10.0]], [[10.0, 10.0]]], [[0.0], [0.0]], [[11.0, 10.0], [60.0, 10.0]])
+    out = step_with(env, [[[0.0, 0.0]], [[0.0, 0.0]]])
+    assert out["done"].tolist() == [[True], [False]]
+
+
+# ---------------------------------------------------------------- resets
+def test_partial_reset_only_changes_masked_envs(make_env):
+    env = make_env("train", num_envs=3, seed=4)
+    td = env._output()
+    td["agents", "action"] = torch.zeros(3, 5, 2)
+    env.step(td)
+    before = env._output()
+    # TorchRL's contract: a partial reset receives the current data (as rollout passes it) plus the mask.
+    td_in = before.clone()
+    td_in["_reset"] = torch.tensor([[True], [False], [True]])
+    out = env.reset(td_in)
+    # Env 1 is untouched: physical state, goal, views and its running episode.
+    for key in (("agents", "position"), ("agents", "velocity"), ("agents", "heading"), ("agents", "observation"),
+                ("agents", "state"), "goal", ("episode", "steps"), ("episode", "d_c")):
+        assert torch.equal(out[key][1], before[key][1]), key
+    assert out["episode", "steps"].tolist() == [0, 1, 0]
+    # Envs 0 and 2 start afresh: new positions and goals, velocity 0.
+    for i in (0, 2):
+        assert not torch.equal(out["agents", "position"][i], before["agents", "position"][i])
+        assert not torch.equal(out["goal"][i], before["goal"][i])
+        assert torch.equal(out["agents", "velocity"][i], torch.zeros(5, 2))
+    # The env's own state agrees with what reset returned.
+    assert torch.equal(env.position, out["agents", "position"])
+    # An all-False mask changes nothing.
+    position = env.position.clone()
+    env.reset(TensorDict({"_reset": torch.zeros(3, 1, dtype=torch.bool)}, batch_size=[3]))
+    assert torch.equal(env.position, position)
+
+
+def test_rollout_continues_across_episode_ends():
+    env = FlockingEnv("s1", num_envs=2, seed=0, max_steps=2)
+    td = env.rollout(5, policy=zero_policy, break_when_any_done=False)
+    assert td.batch_size == (2, 5)
+    # Episodes of 2 steps: truncated at steps 2 and 4, then a fresh episode.
+    assert td["next", "done"][:, :, 0].tolist() == [[False, True, False, True, False]] * 2
+    assert td["next", "episode", "steps"].tolist() == [[1, 2, 1, 2, 1]] * 2
+    # After each end the env was reset: the next step starts from a new spawn with zero velocity.
+    assert td["episode", "steps"].tolist() == [[0, 1, 0, 1, 0]] * 2
+    assert torch.equal(td["agents", "velocity"][:, 2], torch.zeros(2, 5, 2))
+    assert not torch.equal(td["agents", "position"][:, 2], td["next", "agents", "position"][:, 1])
+
+
+# ---------------------------------------------------------------- seeding
+def _positions(env, steps=4):
+    return env.rollout(steps, policy=zero_policy, break_when_any_done=False)
+
+
+@pytest.mark.parametrize("scenario", ["train", "s4", "s5"])
+def test_same_seed_same_rollout(scenario):
+    a = _positions(FlockingEnv(scenario, num_envs=2, seed=11))
+    b = _positions(FlockingEnv(scenario, num_envs=2, seed=11))
+    for key in (("next", "agents", "position"), ("next", "agents", "observation"), ("next", "agents", "reward"),
+                ("next", "goal")):
+        assert torch.equal(a[key], b[key]), key
+    c = _positions(FlockingEnv(scenario, num_envs=2, seed=12))
+    assert not torch.equal(a["next", "agents", "position"], c["next", "agents", "position"])
+
+
+def test_set_seed_restarts_the_stream():
+    env = FlockingEnv("s4", num_envs=2, seed=0)
+    env.set_seed(11)
+    a = _positions(env)
+    b = _positions(FlockingEnv("s4", num_envs=2, seed=11))
+    assert torch.equal(a["next", "agents", "observation"], b["next", "agents", "observation"])
+    # With random actions, seeding torch as well reproduces the whole rollout.
+    torch.manual_seed(5)
+    r1 = FlockingEnv("train", num_envs=2, seed=3).rollout(3)
+    torch.manual_seed(5)
+    r2 = FlockingEnv("train", num_envs=2, seed=3).rollout(3)
+    assert torch.equal(r1["next", "agents", "reward"], r2["next", "agents", "reward"])
