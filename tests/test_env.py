@@ -28,6 +28,14 @@ def test_check_env_specs(scenario, num_envs):
     check_env_specs(FlockingEnv(scenario, num_envs=num_envs, seed=0))
 
 
+@pytest.mark.parametrize("overrides", [dict(instinct=True), dict(instinct=True, noise=True, tangential=False),
+                                       dict(fov=2 * PI), dict(action_mode="velocity"),
+                                       dict(collision_reward_source="min_uav_scan")])
+def test_check_env_specs_policy_variants(overrides):
+    torch.manual_seed(0)
+    check_env_specs(FlockingEnv("train", num_envs=2, seed=0, **overrides))
+
+
 @pytest.mark.parametrize("scenario, n", [("train", 5), ("s2", 9), ("s5", 5)])
 def test_rollout_shapes_and_keys(scenario, n):
     b, t = 2, 4

@@ -110,6 +110,21 @@ def test_env_reward_two_steps_by_hand(make_env, place, step_with):
     assert r2 == pytest.approx([0.044216 - 0.01 + r_f, r_g1 + r_f], abs=3e-6)
 
 
+def test_env_first_step_smoothness_is_zero_and_reset_forgets_the_last_action(make_env, place, step_with):
+    # One UAV at (10, 10) facing +x, goal (50, 10), a = [0, 0.5]: command (2.5, 0), v = 0.5, x -> 10.1.
+    # r_g = 0.2 (40 - 39.9) + 0.02 (pi/2 - 0) - 0.02 = 0.02 + 0.011416 = 0.031416; r_c = 0;
+    # r_f = 0.05 + 0.05 = 0.1 (alone, it is the swarm centre); r_v = 0 since a_{t-1} := a_t
+    # (with a_{t-1} = 0 it would be -0.02 * 0.5 = -0.01). Total 0.131416.
+    env = place(make_env("s1", n_uavs=1), [[[10.0, 10.0]]], [[0.0]], [[50.0, 10.0]])
+    assert step_with(env, [[[0.0, 0.5]]])["agents", "reward"].item() == pytest.approx(0.131416, abs=1e-6)
+    # A new episode forgets the previous action: same placement, a = [0, 0.5] again after
+    # a step with a very different action and a reset -> r_v = 0 again.
+    step_with(env, [[[-1.0, -1.0]]])
+    env.reset()
+    place(env, [[[10.0, 10.0]]], [[0.0]], [[50.0, 10.0]])
+    assert step_with(env, [[[0.0, 0.5]]])["agents", "reward"].item() == pytest.approx(0.131416, abs=1e-6)
+
+
 def test_env_goal_reward_inside_goal(make_env, place, step_with):
     # One UAV at (10, 10) facing +x, goal (10.58, 10): after the step it is at 10.08, d_g = 0.5 < 1:
     # r_g = 20; r_c = 0; r_f = 0.05 (1 - 0) + 0.05 (1 - 0/3) = 0.1 (alone: it is the centre); r_v = 0 -> 20.1.
@@ -150,5 +165,10 @@ def test_env_reward_stores_the_policy_action_even_under_the_instinct(make_env, p
     # give r_v = 0 at step 2, whatever the executed commands were.
     env = place(make_env("s1", n_uavs=2, instinct=True), [[[40.0, 40.0], [41.0, 40.0]]], [[0.0, 0.0]],
                 [[40.0, 80.0]])
-    step_with(env, [[[0.3, -0.2], [0.3, -0.2]]])
+    td = env._output()
+    td["agents", "action"] = torch.tensor([[[0.3, -0.2], [0.3, -0.2]]])
+    out = env.step(td)
+    assert out["next", "agents", "instinct"][0].tolist() == [True, False]
+    # The stored action is the policy's, not the repulsion command that was executed.
+    assert torch.equal(out["agents", "action"], torch.tensor([[[0.3, -0.2], [0.3, -0.2]]]))
     assert torch.allclose(env.prev_action, torch.tensor([[[0.3, -0.2], [0.3, -0.2]]]))

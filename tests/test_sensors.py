@@ -159,7 +159,7 @@ def test_o_cam_ordering_padding_and_heading_difference():
     assert out[0, 0].tolist() == pytest.approx(expected, abs=1e-6)
     # UAV 4 at (-1, 0), heading 0 sees UAV 0 (1 m, bearing 0), UAV 2 (2 m, bearing 0), UAV 3 at
     # offset (1.755 + 1, 0.959) = (2.75517, 0.95885): sqrt(7.5910 + 0.9194) = 2.91725 m, bearing
-    # atan2(0.95885, 2.75517) = 0.33476 rad (< pi/4, visible), and UAV 1 at 4 m (4th, dropped).
+    # atan2(0.95885, 2.75517) = 0.33491 rad (< pi/4, visible), and UAV 1 at 4 m (4th, dropped).
     # dphi = wrap(0 - phi_j): 0, wrap(0.3) = 0.3, wrap(-3.0) = -3.0.
     d3, b3 = math.hypot(2 * math.cos(0.5) + 1, 2 * math.sin(0.5)), math.atan2(2 * math.sin(0.5), 2 * math.cos(0.5) + 1)
     assert out[0, 4].tolist() == pytest.approx([0.2, 0.0, 0.0, 0.4, 0.0, 0.3 / PI,
