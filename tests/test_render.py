@@ -1,0 +1,96 @@
+"""Rendering: env frames, trajectory plots, GIFs and the Fig. 4 reward curves."""
+
+from __future__ import annotations
+
+import math
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from flock_torchrl import FlockingEnv
+from flock_torchrl.evaluation import goal_seeking_policy
+from flock_torchrl.render import (binned_mean_ci, find_reward_logs, make_figures, plot_trajectory, read_reward_log,
+                                  render_frame, rollout_states, save_animation, trajectory_grid)
+
+
+def _red(img: np.ndarray) -> np.ndarray:
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return (r > 180) & (g < 120) & (b < 120)
+
+
+@pytest.fixture(scope="module")
+def s5_rollout():
+    """Two S5 envs (static and moving obstacles) for 12 steps of the scripted policy."""
+    env = FlockingEnv("s5", num_envs=2, seed=0)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        rollout = env.rollout(12, goal_seeking_policy(), break_when_any_done=False)
+    return rollout, env
+
+
+def test_render_frame_is_an_rgb_image_of_the_requested_size():
+    env = FlockingEnv("train", num_envs=2, seed=0)
+    env.reset()
+    img = env.render(env_index=1)
+    assert img.shape == (512, 512, 3) and img.dtype == np.uint8
+    assert _red(img).any()  # the red obstacles are drawn
+    small = render_frame(env, 0, size=(120, 200))
+    assert small.shape == (120, 200, 3) and small.dtype == np.uint8
+    with pytest.raises(IndexError):
+        render_frame(env, env_index=2)
+
+
+def test_field_of_view_wedges_follow_the_config():
+    narrow = FlockingEnv("s1", num_envs=1, seed=0, fov=0.5 * math.pi)
+    wide = FlockingEnv("s1", num_envs=1, seed=0, fov=2 * math.pi)
+    narrow.reset()
+    wide.reset()
+    a, b = render_frame(narrow, size=200), render_frame(wide, size=200)
+    bare = render_frame(narrow, size=200, show_fov=False)
+    tinted = [int((img.astype(int).sum(-1) < 3 * 250).sum()) for img in (bare, a, b)]
+    assert tinted[0] < tinted[1] < tinted[2]  # full circles cover more than 90 degree wedges
+
+
+def test_rollout_states_stop_at_the_first_done():
+    env = FlockingEnv("s1", num_envs=1, seed=0, max_steps=5)
+    with torch.no_grad():
+        rollout = env.rollout(20, goal_seeking_policy(), break_when_any_done=False)
+    states = rollout_states(rollout, 0)
+    assert len(states) == 6  # the start and five steps, truncated at max_steps = 5
+    assert np.allclose(states[1].position, rollout["next", "agents", "position"][0, 0].numpy())
+
+
+def test_trajectory_plot_and_animation_files(tmp_path, s5_rollout):
+    rollout, env = s5_rollout
+    fig = plot_trajectory(rollout, env, env_index=1, path=tmp_path / "traj.png", title="S5")
+    assert fig.axes and (tmp_path / "traj.png").is_file()
+    img = imageio.imread(tmp_path / "traj.png")
+    assert img.ndim == 3 and img.shape[0] > 100
+    gif = save_animation(rollout, env, tmp_path / "anim.gif", env_index=0, size=96, stride=4)
+    frames = imageio.mimread(gif)
+    assert len(frames) == 4 and frames[0].shape[:2] == (96, 96)  # states 0, 4, 8, 12
+    grid = trajectory_grid([("a", rollout, env), ("b", None, "no checkpoint")], ncols=2, path=tmp_path / "g.png")
+    assert len(grid.axes) == 2 and (tmp_path / "g.png").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # atomic writes
+
+
+def test_reward_curves_from_run_logs(tmp_path):
+    runs = tmp_path / "runs"
+    for seed, offset in ((0, 0.0), (1, 2.0)):
+        run = runs / "fast" / "policy3_g" / f"seed{seed}"
+        run.mkdir(parents=True)
+        lines = ["episode,reward"] + [f"{e},{offset + e / 100}" for e in range(1, 201)]
+        (run / "episodes.csv").write_text("\n".join(lines) + "\n")
+    (runs / "fast" / "policy3_g" / "seed0" / "other.csv").write_text("step,loss\n1,0.5\n")
+    logs = find_reward_logs(runs)
+    assert list(logs) == ["Policy3-G"] and len(logs["Policy3-G"]) == 2
+    e, r = read_reward_log(logs["Policy3-G"][0])
+    assert e.shape == (200,) and r[0] == pytest.approx(0.01)
+    # One run, episodes 1..100 -> block 0 with mean (1 + ... + 100) / 100 / 100 = 0.505.
+    x, mean, half = binned_mean_ci(e, r, 100)
+    assert list(x) == [100.0, 200.0] and mean[0] == pytest.approx(0.505) and (half > 0).all()
+    written = make_figures([4], runs_dir=runs, out_dir=tmp_path / "figures", log=lambda m: None)
+    assert written == [tmp_path / "figures" / "fig4_rewards.png"] and written[0].is_file()
+    assert make_figures([4], runs_dir=tmp_path / "empty", out_dir=tmp_path / "figures", log=lambda m: None) == []
