@@ -114,6 +114,9 @@ class ExperimentConfig:
     checkpoint_every_frames: int = 50_000
     keep_buffer_in_checkpoint: bool = True
     algo_overrides: Dict[str, Dict[str, Any]] = field(default_factory=dict)
+    # Scenario fields changed for the *training* env only (a training recipe, e.g. ending an
+    # episode at UAV-UAV contact); evaluation always runs the scenario as the policy defines it.
+    train_env: Dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -196,6 +199,9 @@ def validate_experiment(node: Any) -> ExperimentConfig:
         raise ConfigError(f"experiment field 'max_minutes': must be >= 0, got {cfg.max_minutes}")
     if not (cfg.max_episodes or cfg.max_frames or cfg.max_minutes):
         raise ConfigError("experiment: set at least one of max_episodes, max_frames, max_minutes")
+    unknown = sorted(set(cfg.train_env) - SCENARIO_FIELDS)
+    if unknown:
+        raise ConfigError(f"experiment field 'train_env': unknown scenario field(s) {unknown}")
     unknown = sorted(set(cfg.algo_overrides) - set(ALGO_SCHEMAS))
     if unknown:
         raise ConfigError(f"experiment field 'algo_overrides': unknown algorithm(s) {unknown}")

@@ -43,7 +43,8 @@ TRANSITION_KEYS = [("agents", "observation"), ("agents", "state"), ("agents", "a
 class ResolvedConfig:
     """A train config, checked group by group."""
 
-    scenario: ScenarioConfig
+    scenario: ScenarioConfig          # what the policy is evaluated (and shipped) with
+    train_scenario: ScenarioConfig    # the same plus the experiment's train_env recipe
     policy: PolicyConfig
     policy_id: str
     algo: Any
@@ -116,10 +117,12 @@ def resolve_config(cfg: DictConfig | dict) -> ResolvedConfig:
     algo = validate_algo(algo_node)
     scenario_node = OmegaConf.to_container(cfg.scenario, resolve=True)
     # Precedence: scenario YAML < the policy's env block < the user's own scenario.* overrides.
-    scenario = load_scenario(scenario_node, **{**policy.env, **OmegaConf.to_container(_user_overrides(cfg, "scenario"))})
+    user = OmegaConf.to_container(_user_overrides(cfg, "scenario"))
+    scenario = load_scenario(scenario_node, **{**policy.env, **user})
+    train_scenario = load_scenario(scenario_node, **{**policy.env, **experiment.train_env, **user})
     policy_id = cfg.get("policy_id") or _hydra_choice("policy") or policy.name.lower().replace("-", "_")
     return ResolvedConfig(
-        scenario=scenario, policy=policy, policy_id=str(policy_id), algo=algo, experiment=experiment,
+        scenario=scenario, train_scenario=train_scenario, policy=policy, policy_id=str(policy_id), algo=algo, experiment=experiment,
         logger=validate_logger(cfg.logger), seed=int(cfg.seed), device=str(cfg.device),
         run_dir=Path(str(cfg.run_dir)), resume=bool(cfg.resume), progress=bool(cfg.get("progress", True)),
         eval_seed=int(cfg.get("eval_seed", 2024)),
@@ -255,7 +258,7 @@ def train(cfg: DictConfig | dict) -> TrainResult:
     per_worker = exp.num_envs // exp.workers
 
     def env_factory(worker: int = 0):
-        return FlockingEnv(rc.scenario, num_envs=per_worker, device=device, seed=rc.seed * 1000 + worker)
+        return FlockingEnv(rc.train_scenario, num_envs=per_worker, device=device, seed=rc.seed * 1000 + worker)
 
     env = env_factory()
     learner = make_learner(env, rc.algo, rc.policy.critic_input)
@@ -377,6 +380,14 @@ def train(cfg: DictConfig | dict) -> TrainResult:
         collector.shutdown()
         episode_log.close()
         progress.close()
+    if exp.eval_episodes and (not evaluations or evaluations[-1]["frames"] != counters["frames"]):
+        final = _evaluate_during_training(learner.actor, rc)
+        final["frames"] = counters["frames"]
+        evaluations.append(final)
+        if logger is not None:
+            for key, value in final.items():
+                if key != "frames":
+                    logger.log_scalar(f"eval/{key}", value, step=counters["frames"])
     path = save()
     return TrainResult(run_dir, path, counters["frames"], counters["episodes"], counters["updates"],
                        counters["seconds"], evaluations)

@@ -17,6 +17,11 @@ def main(cfg: DictConfig) -> None:
     result = train(cfg)
     print(f"checkpoint: {result.checkpoint} ({result.frames} frames, {result.episodes} episodes, "
           f"{result.updates} updates, {result.seconds:.0f} s)")
+    if result.evaluations:
+        last = result.evaluations[-1]
+        print(f"evaluation ({int(last['n_episodes'])} episodes, seed {cfg.eval_seed}, deterministic): "
+              f"success {last['success']:.3f}, safe_success {last['safe_success']:.3f}, "
+              f"d_min_uav {last['d_min_uav']:.3f}, d_c {last['d_c']:.3f}, t_goal {last['t_goal']:.2f} s")
 
 
 if __name__ == "__main__":
