@@ -24,7 +24,7 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
 
     Args:
         position, velocity: ``[B, N, 2]``; heading ``[B, N]``;
-        obstacle_distance: ``[B, N]`` true distance to the nearest obstacle surface.
+        obstacle_distance: ``[B, N]`` signed distance to the nearest obstacle surface (negative inside).
 
     Returns:
         ``obs`` (min over UAVs of the obstacle distance), ``uav`` (closest pair, ``inf`` for
@@ -41,7 +41,8 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
     v_i = torch.linalg.vector_norm(velocity, dim=-1)
     phi_bar = circular_mean(heading, -1, keepdim=True)
     return {
-        "obs": obstacle_distance.amin(-1),
+        # A UAV that overshoots into an obstacle on its crash step is at distance 0, not negative.
+        "obs": obstacle_distance.amin(-1).clamp_min(0.0),
         "uav": uav,
         "d_c": torch.linalg.vector_norm(position - centre, dim=-1).mean(-1),
         "v_error": (v_i - v_c[:, None]).abs().mean(-1),

@@ -131,3 +131,10 @@ def test_env_episode_metrics_after_one_step(make_env, place, step_with):
     assert ep["phi_error"].item() == pytest.approx(0.0, abs=1e-6)
     assert ep["d_min_obs"].item() == 10.0
     assert ep["reached"].tolist() == [False] and math.isnan(ep["t_goal"].item())
+
+
+def test_obstacle_distance_inside_an_obstacle_counts_as_zero():
+    # A UAV 0.1 m inside an obstacle (signed distance -0.1) on its crash step: d_min_obs = 0.
+    position = torch.tensor([[[0.0, 0.0], [5.0, 0.0]]])
+    stats = step_statistics(position, torch.zeros(1, 2, 2), torch.zeros(1, 2), torch.tensor([[-0.1, 3.0]]))
+    assert stats["obs"].item() == 0.0
