@@ -1,0 +1,196 @@
+"""Policy-OP: Vasarhelyi et al. 2018 flocking, with self-propulsion towards the goal.
+
+G. Vasarhelyi, Cs. Viragh, G. Somorjai, T. Nepusz, A. E. Eiben, T. Vicsek, "Optimized
+flocking of autonomous drones in confined environments", Science Robotics 3(20), 2018.
+Equation numbers below are that paper's (Materials and Methods): self-propulsion, linear
+short-range repulsion (Eq. 2), the braking curve D (Eq. 3), velocity alignment as friction
+(Eq. 4-5), shill agents at obstacles (Eq. 6-8), and the desired velocity with its speed cap
+(Eq. 9-10).
+
+The controller outputs a desired velocity, which is exactly this world's command (Eq. 1 of
+Bai et al. has the same first-order robot model as the paper's simulator). The original has
+no goal: its self-propulsion keeps the current direction. Here it points at the goal
+(BASELINES.md). Sensing is limited as for the learned policies (SPEC 7): neighbours are the
+UAVs the camera sees, with their relative velocities; a shill agent sits at each obstacle's
+nearest laser hit and moves away from the surface along the normal hit -> UAV.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from .params import check_params
+from .sensing import cap_norm, nearest_hits, neighbour_view, obstacle_count, unit
+
+
+def braking_curve(r: torch.Tensor, a: float, p: float) -> torch.Tensor:
+    """Optimal braking curve ``D(r, a, p)`` (Eq. 3), elementwise.
+
+    0 for ``r <= 0``; ``r p`` for ``0 < r < a / p^2``; ``sqrt(2 a r - a^2 / p^2)`` beyond: the
+    largest speed from which one can stop within ``r`` at deceleration ``a`` (with a linear
+    part of gain ``p`` near the stop).
+    """
+    r = r.clamp_min(0.0)
+    linear = r * p
+    sqrt_part = torch.sqrt((2.0 * a * r - a * a / (p * p)).clamp_min(0.0))
+    return torch.where(r < a / (p * p), linear, sqrt_part)
+
+
+def self_propulsion(to_goal: torch.Tensor, v_flock: float) -> torch.Tensor:
+    """Self-propulsion at the preferred speed ``v_flock`` towards the goal, ``[B, N, 2]``.
+
+    Replaces the original's ``v_flock v_i / |v_i|`` (no goal there) by the unit vector to the
+    goal. ``to_goal``: ``q_goal - q_i`` ``[B, N, 2]``.
+    """
+    return v_flock * unit(to_goal)
+
+
+def repulsion(offset: torch.Tensor, distance: torch.Tensor, visible: torch.Tensor, p_rep: float,
+              r0_rep: float) -> torch.Tensor:
+    """Linear short-range repulsion (Eq. 2): ``sum_j p_rep (r0 - r_ij) (q_i - q_j) / r_ij`` for ``r_ij < r0``.
+
+    Args:
+        offset: ``q_j - q_i`` ``[B, N, N, 2]``; distance: ``r_ij`` ``[B, N, N]``; visible: ``[B, N, N]``.
+
+    Returns:
+        ``[B, N, 2]``.
+    """
+    active = visible & (distance < r0_rep) & (distance > 0)
+    gain = torch.where(active, p_rep * (r0_rep - distance) / distance.clamp_min(1e-9), torch.zeros_like(distance))
+    return -(gain[..., None] * offset).sum(-2)
+
+
+def friction(relative_velocity: torch.Tensor, distance: torch.Tensor, visible: torch.Tensor, *, c_frict: float,
+             v_frict: float, r0_frict: float, a_frict: float, p_frict: float) -> torch.Tensor:
+    """Velocity alignment as viscous friction (Eq. 4-5).
+
+    ``v_ij = |v_j - v_i|``, ``v_ij^max = max(v_frict, D(r_ij - r0_frict, a_frict, p_frict))``;
+    ``sum_j C_frict (v_ij - v_ij^max) (v_j - v_i) / v_ij`` where ``v_ij > v_ij^max``: velocity
+    differences up to the slack ``v_frict`` (nearby) or the braking curve (far) are tolerated.
+
+    Args:
+        relative_velocity: ``v_j - v_i`` ``[B, N, N, 2]``; distance: ``[B, N, N]``; visible: ``[B, N, N]``.
+
+    Returns:
+        ``[B, N, 2]``.
+    """
+    speed = torch.linalg.vector_norm(relative_velocity, dim=-1)
+    allowed = braking_curve(distance - r0_frict, a_frict, p_frict).clamp_min(v_frict)
+    excess = torch.where(visible & (speed > allowed), c_frict * (speed - allowed), torch.zeros_like(speed))
+    return (excess[..., None] * relative_velocity / speed.clamp_min(1e-9)[..., None]).sum(-2)
+
+
+def shill(hit_distance: torch.Tensor, hit_normal: torch.Tensor, seen: torch.Tensor, velocity: torch.Tensor, *,
+          v_shill: float, r0_shill: float, a_shill: float, p_shill: float) -> torch.Tensor:
+    """Obstacle avoidance by shill agents (Eq. 6-8), one per obstacle at its nearest laser hit.
+
+    The shill agent moves at ``v_s = v_shill n`` (``n`` the surface normal, hit -> UAV);
+    ``v_is = |v_s - v_i|``; the UAV aligns with it when ``v_is`` exceeds the braking curve
+    ``D(r_is - r0_shill, a_shill, p_shill)``: ``(v_is - D) (v_s - v_i) / v_is``.
+
+    Args:
+        hit_distance: ``r_is`` ``[B, N, M]``; hit_normal: ``[B, N, M, 2]``; seen: ``[B, N, M]``;
+        velocity: ``v_i`` ``[B, N, 2]``.
+
+    Returns:
+        ``[B, N, 2]``.
+    """
+    difference = v_shill * hit_normal - velocity[:, :, None, :]                # v_s - v_i
+    speed = torch.linalg.vector_norm(difference, dim=-1)
+    allowed = braking_curve(torch.where(seen, hit_distance, torch.zeros_like(hit_distance)) - r0_shill,
+                            a_shill, p_shill)
+    excess = torch.where(seen & (speed > allowed), speed - allowed, torch.zeros_like(speed))
+    return (excess[..., None] * difference / speed.clamp_min(1e-9)[..., None]).sum(-2)
+
+
+@dataclass
+class VasarhelyiParams:
+    """The 2018 paper's evolved parameters, rescaled to this world in ``conf/policy/policy_op.yaml``."""
+
+    v_flock: float = 3.0      # preferred speed (m/s)
+    v_max: float = 3.0        # speed cap on the desired velocity (m/s), Eq. 10
+    r0_rep: float = 3.5       # repulsion range (m)
+    p_rep: float = 0.8        # repulsion gain (1/s)
+    r0_frict: float = 4.0     # friction: distance where the braking-curve slack starts (m)
+    c_frict: float = 0.3      # friction coefficient
+    v_frict: float = 0.5      # friction slack: tolerated velocity difference (m/s)
+    p_frict: float = 3.2      # braking curve gain (1/s)
+    a_frict: float = 4.16     # braking curve deceleration (m/s^2)
+    r0_shill: float = 0.5     # shill: stopping point in front of the obstacle (m)
+    v_shill: float = 7.5      # shill agents' speed (m/s)
+    p_shill: float = 3.55     # shill braking gain (1/s)
+    a_shill: float = 3.02     # shill braking deceleration (m/s^2)
+
+    def __post_init__(self) -> None:
+        check_params(self, positive=("v_flock", "v_max", "r0_rep", "p_frict", "a_frict", "v_shill", "p_shill",
+                                     "a_shill"),
+                     non_negative=("p_rep", "r0_frict", "c_frict", "v_frict", "r0_shill"))
+
+
+class VasarhelyiPolicy(TensorDictModuleBase):
+    """Policy-OP as a TensorDict module: reads the env's raw sensing, writes the velocity command.
+
+    Needs the env built with ``action_mode="velocity"``. Works on any device (that of the inputs).
+
+    Args:
+        params: :class:`VasarhelyiParams`.
+        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`): camera range and
+            field of view, ``v_max``, obstacle count, S4 noise.
+        seed: seed of the S4 camera-noise generator.
+
+    Example:
+        >>> from flock_torchrl import FlockingEnv
+        >>> from flock_torchrl.baselines import make_baseline
+        >>> env = FlockingEnv("s1", num_envs=2, seed=0, action_mode="velocity")
+        >>> td = env.rollout(3, policy=make_baseline("policy_op", env.cfg))
+        >>> td["agents", "action"].shape
+        torch.Size([2, 3, 5, 2])
+    """
+
+    in_keys = [("agents", "position"), ("agents", "velocity"), ("agents", "heading"), ("agents", "scan"),
+               ("agents", "scan_obstacle"), "goal"]
+    out_keys = [("agents", "action")]
+
+    def __init__(self, params: VasarhelyiParams, env_cfg, seed: int = 0) -> None:
+        super().__init__()
+        self.params, self.env_cfg, self.seed = params, env_cfg, seed
+        self.n_obstacles = obstacle_count(env_cfg)
+        self._generator: torch.Generator | None = None
+
+    def _noise(self, device: torch.device):
+        if not self.env_cfg.noise:
+            return None, None
+        if self._generator is None or self._generator.device != device:
+            self._generator = torch.Generator(device=device)
+            self._generator.manual_seed(self.seed)
+        return (self.env_cfg.noise_distance, self.env_cfg.noise_angle), self._generator
+
+    def desired_velocity(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """``v_d`` of Eq. 9-10 ``[B, N, 2]``, capped at ``min(v_max, env v_max)``."""
+        p, cfg = self.params, self.env_cfg
+        position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
+        heading = tensordict["agents", "heading"]
+        noise, generator = self._noise(position.device)
+        view = neighbour_view(position, velocity, heading, cfg.camera_range, cfg.fov, noise, generator)
+        hits = nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
+                            self.n_obstacles)
+        to_goal = tensordict["goal"][:, None, :] - position
+        desired = (self_propulsion(to_goal, p.v_flock)
+                   + repulsion(view.offset, view.distance, view.visible, p.p_rep, p.r0_rep)
+                   + friction(view.relative_velocity, view.distance, view.visible, c_frict=p.c_frict,
+                              v_frict=p.v_frict, r0_frict=p.r0_frict, a_frict=p.a_frict, p_frict=p.p_frict)
+                   + shill(hits.distance, hits.normal, hits.seen, velocity, v_shill=p.v_shill,
+                           r0_shill=p.r0_shill, a_shill=p.a_shill, p_shill=p.p_shill))
+        return cap_norm(desired, min(p.v_max, cfg.v_max))
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        tensordict.set(("agents", "action"), self.desired_velocity(tensordict))
+        return tensordict
+
+
+__all__ = ["VasarhelyiParams", "VasarhelyiPolicy", "braking_curve", "friction", "repulsion", "self_propulsion",
+           "shill"]
