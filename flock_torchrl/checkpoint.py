@@ -62,6 +62,15 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return payload
 
 
+def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike) -> Path:
+    """Write the slim, shippable part of a training checkpoint: the actor, its metadata, the
+    run's config, counters and evaluations (no optimiser, replay buffer or env state)."""
+    payload = load_checkpoint(checkpoint)
+    slim = {key: payload[key] for key in ("format", "meta", "actor", "config", "counters", "evaluations")
+            if key in payload}
+    return atomic_save(slim, destination)
+
+
 class SharedPolicy(TensorDictModuleBase):
     """A trained shared actor that runs with any number of UAVs.
 

@@ -14,6 +14,7 @@ exposes the same small surface to the trainer:
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import torch
@@ -24,6 +25,9 @@ from torchrl.objectives import ClipPPOLoss, DDPGLoss, SACLoss, SoftUpdate, Value
 
 from .models import ACTION, LOG_PROB, make_actor, make_qvalue, make_value
 from .schema import DDPGConfig, PPOConfig, SACConfig
+
+# PPO normalises advantages over all UAVs of the batch on purpose (one shared policy).
+warnings.filterwarnings("ignore", message="You requested advantage normalization")
 
 AGENT_KEYS = dict(reward=("agents", "reward"), done=("agents", "done"), terminated=("agents", "terminated"))
 

@@ -68,6 +68,7 @@ class DDPGConfig:
 @dataclass
 class PPOConfig:
     name: str = "ppo"
+    rollout_steps: int = 64             # env steps per env per on-policy batch (replaces steps_per_batch)
     gamma: float = 0.99
     lmbda: float = 0.95
     clip_epsilon: float = 0.2
@@ -131,7 +132,7 @@ class TrainConfig:
     seed: int = 0
     device: str = "cpu"
     run_dir: str = "runs/default"
-    resume: bool = False
+    resume: Any = False                 # true | false | auto (resume if a checkpoint exists)
     progress: bool = True
     eval_seed: int = 2024
     policy_id: Optional[str] = None
@@ -171,7 +172,7 @@ def validate_algo(node: Any) -> SACConfig | DDPGConfig | PPOConfig:
     for key, value in vars(cfg).items():
         if isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isfinite(value):
             raise ConfigError(f"algo field '{key}': must be finite, got {value}")
-    for key in ("batch_size", "buffer_size", "minibatch_size", "epochs", "hidden", "depth"):
+    for key in ("batch_size", "buffer_size", "minibatch_size", "epochs", "hidden", "depth", "rollout_steps"):
         if hasattr(cfg, key) and getattr(cfg, key) < 1:
             raise ConfigError(f"algo field '{key}': must be >= 1, got {getattr(cfg, key)}")
     return cfg

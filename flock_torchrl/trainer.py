@@ -53,7 +53,7 @@ class ResolvedConfig:
     seed: int
     device: str
     run_dir: Path
-    resume: bool
+    resume: bool | str
     progress: bool
     eval_seed: int
 
@@ -124,9 +124,17 @@ def resolve_config(cfg: DictConfig | dict) -> ResolvedConfig:
     return ResolvedConfig(
         scenario=scenario, train_scenario=train_scenario, policy=policy, policy_id=str(policy_id), algo=algo, experiment=experiment,
         logger=validate_logger(cfg.logger), seed=int(cfg.seed), device=str(cfg.device),
-        run_dir=Path(str(cfg.run_dir)), resume=bool(cfg.resume), progress=bool(cfg.get("progress", True)),
+        run_dir=Path(str(cfg.run_dir)), resume=_resume_mode(cfg.resume), progress=bool(cfg.get("progress", True)),
         eval_seed=int(cfg.get("eval_seed", 2024)),
     )
+
+
+def _resume_mode(value: Any) -> bool | str:
+    if isinstance(value, bool):
+        return value
+    if str(value).lower() in ("auto", "true", "false"):
+        return {"auto": "auto", "true": True, "false": False}[str(value).lower()]
+    raise ConfigError(f"field 'resume': must be true, false or auto, got {value!r}")
 
 
 def _user_overrides(cfg: DictConfig, group: str) -> DictConfig:
@@ -244,9 +252,9 @@ def train(cfg: DictConfig | dict) -> TrainResult:
     run_dir = rc.run_dir
     ckpt_path = run_dir / LAST
     payload = None
-    if rc.resume:
+    if rc.resume is True or (rc.resume == "auto" and ckpt_path.exists()):
         payload = load_checkpoint(ckpt_path)  # raises a clear error when absent or corrupted
-    elif ckpt_path.exists():
+    elif ckpt_path.exists() and rc.resume is False:
         raise CheckpointError(f"{run_dir} already holds a checkpoint; pass resume=true to continue it, "
                               "or choose another run_dir (nothing was changed)")
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -280,7 +288,8 @@ def train(cfg: DictConfig | dict) -> TrainResult:
         if exp.workers == 1:
             env.set_state(payload["env_state"])
 
-    frames_per_batch = exp.num_envs * exp.steps_per_batch
+    steps = exp.steps_per_batch if learner.off_policy else rc.algo.rollout_steps
+    frames_per_batch = exp.num_envs * steps
     init_random = max(0, exp.init_random_frames - counters["frames"]) if learner.off_policy else 0
     collector_kwargs = dict(frames_per_batch=frames_per_batch, total_frames=-1, device=device,
                             init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
@@ -315,8 +324,9 @@ def train(cfg: DictConfig | dict) -> TrainResult:
             state["buffer"] = buffer.state_dict()
         return atomic_save(state, ckpt_path)
 
+    already_done = _done(exp, counters, counters["seconds"])  # resuming a finished run changes nothing
     try:
-        for batch in collector:
+        for batch in ([] if already_done else collector):
             t_collect_end = time.perf_counter()
             frames = batch.numel()
             counters["frames"] += frames

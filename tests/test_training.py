@@ -13,6 +13,8 @@ from flock_torchrl.trainer import make_train_config, train
 
 
 def tiny(tmp_path, policy="policy3_g", name="run", **overrides):
+    # Short episodes keep the periodic evaluations (untrained policies never arrive) fast.
+    overrides = {"scenario.max_steps": 60, **overrides}
     return make_train_config(policy, "tiny", logger="csv", run_dir=str(tmp_path / name), seed=0,
                              overrides=overrides)
 
@@ -48,7 +50,7 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
 def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
     whole = train(tiny(tmp_path, name="whole"))
     part = make_train_config("policy3_g", "tiny", logger="none", run_dir=str(tmp_path / "split"), seed=0,
-                             overrides={"experiment.max_frames": 96})
+                             overrides={"experiment.max_frames": 96, "scenario.max_steps": 60})
     first = train(part)
     assert first.frames == 96
     rest = OmegaConf.merge(part, {"resume": True, "experiment": {"max_frames": 160}})
@@ -114,7 +116,7 @@ def test_checkpoint_with_code_never_runs(tmp_path, capsys):
 def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
     from torchrl.data import TensorDictReplayBuffer
 
-    cfg = tiny(tmp_path, **{"experiment.max_frames": 400})
+    cfg = tiny(tmp_path, **{"experiment.max_frames": 320})
     calls = {"n": 0}
     original = TensorDictReplayBuffer.sample
 
@@ -129,7 +131,7 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypa
     with pytest.raises(FloatingPointError, match="loss"):
         train(cfg)
     kept = load_checkpoint(tmp_path / "run")
-    assert 0 < kept["counters"]["frames"] < 400
+    assert 0 < kept["counters"]["frames"] < 320
     for value in kept["actor"].values():
         assert torch.isfinite(value).all()
 
@@ -138,3 +140,15 @@ def test_unpicklable_junk_in_checkpoint_dir_is_a_clear_error(tmp_path):
     (tmp_path / "last.pt").write_bytes(pickle.dumps({"format": "something else"}))
     with pytest.raises(CheckpointError):
         load_checkpoint(tmp_path)
+
+
+def test_resume_auto_starts_fresh_then_leaves_a_finished_run_unchanged(tmp_path):
+    cfg = tiny(tmp_path)
+    cfg.resume = "auto"
+    first = train(cfg)  # no checkpoint yet: a fresh run
+    before = load_checkpoint(first.checkpoint)
+    again = train(cfg)  # finished: nothing more is collected or learned
+    after = load_checkpoint(again.checkpoint)
+    assert after["counters"]["frames"] == before["counters"]["frames"]
+    for key, value in before["actor"].items():
+        assert torch.equal(value, after["actor"][key]), key
