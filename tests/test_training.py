@@ -123,7 +123,7 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypa
     def poisoned(self, *args, **kwargs):
         batch = original(self, *args, **kwargs)
         calls["n"] += 1
-        if calls["n"] > 40:  # after the first periodic checkpoint (64 frames)
+        if calls["n"] > 20:  # 2 updates per 16 frames from frame 32: past the checkpoints at 64 and 128
             batch.set(("next", "agents", "reward"), torch.full_like(batch["next", "agents", "reward"], float("nan")))
         return batch
 
