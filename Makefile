@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.installed
 # range admits it, so pip keeps it (and keeps a user's own CUDA build in their own env).
 TORCH   ?= torch==2.13.0
 
-.PHONY: install test test-all demo train train-all reproduce-table3 reproduce-table4 reproduce-table5 \
+.PHONY: install test test-all demo train train-all train-safe reproduce-table3 reproduce-table4 reproduce-table5 \
         figures benchmark tune-baselines clean
 
 $(STAMP): pyproject.toml
@@ -33,6 +33,22 @@ demo: $(STAMP)
 train: $(STAMP)
 	$(PYTHON) scripts/train.py $(ARGS)
 
+# The shipped checkpoints: the ten learned policies (seed 0) and Policy3-G seeds 1-2 with
+# experiment=fast, two single-threaded runs at a time, then the slim policies into checkpoints/.
+LEARNED := policy1,policy1_g,policy2,policy2_g,policy3,policy3_g,policy4_g,policy5_g,policyd_g,policyp_g
+train-all: $(STAMP)
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast progress=false \
+		resume=auto seed=0 policy=$(LEARNED)
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast progress=false \
+		resume=auto seed=1,2 policy=policy3_g
+	$(PYTHON) scripts/export_checkpoints.py runs/fast
+
+# Our improvement on safe_success (same reward, sensors and instinct): Policy3-G, 3 seeds.
+train-safe: $(STAMP)
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast_safe progress=false \
+		resume=auto seed=0,1,2 policy=policy3_g
+	$(PYTHON) scripts/export_checkpoints.py runs/fast_safe --dest checkpoints/fast_safe
+
 clean:
 	rm -rf outputs multirun .pytest_cache
 
@@ -52,3 +68,6 @@ figures: $(STAMP)
 
 tune-baselines: $(STAMP)
 	$(PYTHON) scripts/tune_baselines.py
+
+benchmark: $(STAMP)
+	$(PYTHON) scripts/benchmark.py
