@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import copy
 import csv
-import inspect
 import math
 import os
 import re

@@ -312,20 +312,23 @@ def trajectory_grid(panels: Sequence[tuple[str, Any, Any] | tuple[str, None, str
         panels: ``(title, rollout_td, env)`` per panel, or ``(title, None, reason)`` for a panel
             with nothing to show (the reason is written in it).
     """
+    import textwrap
+
     nrows = max(1, math.ceil(len(panels) / ncols))
-    fig = Figure(figsize=(panel_size * ncols, panel_size * nrows), dpi=DPI)
+    fig = Figure(figsize=(panel_size * ncols, panel_size * nrows), dpi=DPI, layout="constrained")
     for i, (title, rollout, env) in enumerate(panels):
         ax = fig.add_subplot(nrows, ncols, i + 1)
         if rollout is None:
-            ax.text(0.5, 0.5, str(env), ha="center", va="center", fontsize=7, wrap=True, transform=ax.transAxes)
+            ax.text(0.5, 0.5, textwrap.fill(str(env), 30), ha="center", va="center", fontsize=7,
+                    transform=ax.transAxes)
             ax.set_title(title, fontsize=9)
             ax.set_xticks([])
             ax.set_yticks([])
+            ax.set_box_aspect(1)
         else:
             plot_trajectory(rollout, env, ax=ax, title=title)
     if suptitle:
         fig.suptitle(suptitle)
-    fig.tight_layout()
     if path is not None:
         _save_figure(fig, path)
     return fig
@@ -375,7 +378,7 @@ def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarra
     Args:
         curves: policy name -> ``[(episode, reward), ...]``, one pair of arrays per run (seed).
     """
-    fig = Figure(figsize=(7, 4.5), dpi=DPI)
+    fig = Figure(figsize=(7, 4.5), dpi=DPI, layout="constrained")
     ax = fig.add_subplot(1, 1, 1)
     for i, (name, runs) in enumerate(curves.items()):
         if not runs:
@@ -384,7 +387,7 @@ def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarra
         rewards = np.concatenate([r for _, r in runs])
         x, mean, half = binned_mean_ci(episodes, rewards, bin_size)
         label = f"{name} ({len(runs)} run{'s' if len(runs) > 1 else ''})"
-        ax.plot(x, mean, color=f"C{i % 10}", lw=1.2, label=label)
+        ax.plot(x, mean, color=f"C{i % 10}", lw=1.2, label=label, marker="o" if x.size < 3 else None, ms=3)
         ax.fill_between(x, mean - half, mean + half, color=f"C{i % 10}", alpha=0.2, lw=0)
     ax.set_xlabel("episode")
     ax.set_ylabel("episode reward")
@@ -393,26 +396,30 @@ def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarra
     if ax.lines:
         ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     if path is not None:
         _save_figure(fig, path)
     return fig
 
 
-def find_reward_logs(runs_dir: str | os.PathLike) -> dict[str, list[Path]]:
+def find_reward_logs(runs_dir: str | os.PathLike, experiment: str | None = None) -> dict[str, list[Path]]:
     """Training logs under ``runs_dir`` (``runs/<experiment>/<policy>/seed<k>/...``): every CSV
     with columns ``episode`` and ``reward``, grouped by the policy folder in its path (paper
-    names, in the order of ``conf/policy``)."""
+    names). Only ``experiment``'s runs when given; when runs of several experiments are found,
+    each group is labelled ``"<policy> (<experiment>)"`` so that they are not pooled."""
     from .evaluation import available_policies, load_policy_config
 
     stems = set(available_policies())
-    found: dict[str, list[Path]] = {}
     root = Path(runs_dir)
     if not root.is_dir():
-        return found
+        return {}
+    groups: dict[tuple[str, str], list[Path]] = {}
     for p in sorted(root.rglob("*.csv")):
-        stem = next((part for part in p.relative_to(root).parts[:-1] if part in stems), None)
-        if stem is None:
+        parts = p.relative_to(root).parts[:-1]
+        at = next((i for i, part in enumerate(parts) if part in stems), None)
+        if at is None:
+            continue
+        exp = parts[at - 1] if at > 0 else ""
+        if experiment is not None and exp != experiment:
             continue
         try:
             with open(p, newline="") as fh:
@@ -420,8 +427,9 @@ def find_reward_logs(runs_dir: str | os.PathLike) -> dict[str, list[Path]]:
         except OSError:
             continue
         if {"episode", "reward"} <= set(header):
-            found.setdefault(load_policy_config(stem)["name"], []).append(p)
-    return found
+            groups.setdefault((load_policy_config(parts[at])["name"], exp), []).append(p)
+    several = len({exp for _, exp in groups}) > 1
+    return {(f"{name} ({exp})" if several else name): paths for (name, exp), paths in groups.items()}
 
 
 # ---------------------------------------------------------------------------- the figures
@@ -443,7 +451,7 @@ def _panel(title: str, name: str, scenario: str, seed: int, device: str, checkpo
     policy, label = _first_run(name, checkpoint_dir, overrides)
     if policy is None:
         log(f"  {title}: {label}")
-        return title, None, label.replace("skipped: ", "")
+        return title, None, label.replace("skipped: ", "").split(" (train it")[0]
     try:
         source = policy_source(policy, device=device, checkpoint_dir=checkpoint_dir)
         try:
@@ -463,10 +471,11 @@ def _panel(title: str, name: str, scenario: str, seed: int, device: str, checkpo
 def make_figures(figs: Sequence[int] = (4, 5, 6), runs_dir: str | os.PathLike = "runs",
                  checkpoint_dir: str | os.PathLike = "checkpoints", out_dir: str | os.PathLike = "figures",
                  seed: int | None = None, device: str = "cpu", policies: Mapping[str, Any] | None = None,
-                 log: Callable[[str], None] = print) -> list[Path]:
+                 experiment: str | None = None, log: Callable[[str], None] = print) -> list[Path]:
     """Write the paper's figures that the available runs and checkpoints allow.
 
-    * ``fig4_rewards.png``: training reward curves (CSV logs under ``runs_dir``).
+    * ``fig4_rewards.png``: training reward curves (CSV logs under ``runs_dir``, only those of
+      ``experiment`` if given).
     * ``fig5_trajectories.png``: one seeded training-scenario episode per policy (3 x 4 grid).
     * ``fig6_generalization.png``: one seeded episode per scenario S1-S5 (rows) and policy
       (Policy3-G, PolicyD-G, PolicyP-G, Policy-MA, Policy-OP; columns).
@@ -481,22 +490,32 @@ def make_figures(figs: Sequence[int] = (4, 5, 6), runs_dir: str | os.PathLike = 
     out = Path(out_dir)
     written: list[Path] = []
     if 4 in figs:
-        logs = find_reward_logs(runs_dir)
+        logs = find_reward_logs(runs_dir, experiment)
         if not logs:
-            log(f"Fig. 4: skipped, no CSV with columns episode,reward under {runs_dir}/<experiment>/<policy>/seed<k>/")
+            log(f"Fig. 4: skipped, no CSV with columns episode,reward under "
+                f"{runs_dir}/{experiment or '<experiment>'}/<policy>/seed<k>/")
         else:
-            curves = {}
+            curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
             for name, paths in logs.items():
                 runs = []
                 for p in paths:
                     try:
-                        runs.append(read_reward_log(p))
+                        episodes, rewards = read_reward_log(p)
                     except (OSError, ValueError) as exc:
                         log(f"Fig. 4: skipping {p}: {exc}")
-                curves[name] = runs
-                log(f"Fig. 4: {name}: {len(runs)} run(s)")
-            plot_reward_curves(curves, out / "fig4_rewards.png")
-            written.append(out / "fig4_rewards.png")
+                        continue
+                    if episodes.size == 0:
+                        log(f"Fig. 4: skipping {p}: no finished episode logged yet")
+                        continue
+                    runs.append((episodes, rewards))
+                if runs:
+                    curves[name] = runs
+                    log(f"Fig. 4: {name}: {len(runs)} run(s), {sum(e.size for e, _ in runs)} episodes")
+            if curves:
+                plot_reward_curves(curves, out / "fig4_rewards.png")
+                written.append(out / "fig4_rewards.png")
+            else:
+                log("Fig. 4: skipped, the logs hold no finished episode")
     if 5 in figs:
         log("Fig. 5: one training-scenario episode per policy")
         names = [e.policy for e in table_entries(3)]
@@ -527,7 +546,7 @@ def figures_main(argv: Sequence[str]) -> int:
     threads) -> :func:`make_figures`; returns the exit status (2 for bad arguments)."""
     from .evaluation import EVAL_SEED
 
-    options = {"figs": "4,5,6", "runs": "runs", "checkpoints": "checkpoints", "out": "figures",
+    options = {"figs": "4,5,6", "runs": "runs", "experiment": "", "checkpoints": "checkpoints", "out": "figures",
                "seed": str(EVAL_SEED), "device": "cpu", "threads": "1"}
     if any(a in ("-h", "--help", "help") for a in argv):
         print("keys: " + ", ".join(f"{k}={v}" for k, v in options.items()))
@@ -548,5 +567,6 @@ def figures_main(argv: Sequence[str]) -> int:
     if threads > 0:
         torch.set_num_threads(threads)
     make_figures(figs, runs_dir=options["runs"], checkpoint_dir=options["checkpoints"], out_dir=options["out"],
-                 seed=seed, device=options["device"], log=lambda m: print(m, flush=True))
+                 seed=seed, device=options["device"], experiment=options["experiment"] or None,
+                 log=lambda m: print(m, flush=True))
     return 0

@@ -199,7 +199,7 @@ class ReproduceConfig:
     checkpoints: str = "checkpoints"
     results: str = "results"
     only: str = ""            # comma-separated policy names to run (others stay empty)
-    threads: int = 0          # torch threads (0: leave torch's default)
+    threads: int = 1          # torch threads (0: torch's default; 1 suits a shared 2-core machine)
     episodes_csv: bool = True  # also write every episode's metrics (<results>/table<k>_episodes.csv)
 
 

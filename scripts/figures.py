@@ -4,7 +4,8 @@
     python scripts/figures.py figs=5,6 seed=7 out=figures
 
 Keys: figs (comma-separated of 4, 5, 6), runs (training run folders, default runs),
-checkpoints, out, seed (default: the evaluation seed), device, threads.
+experiment (only runs/<experiment>/..., default all), checkpoints, out, seed (default: the
+evaluation seed), device, threads.
 Whatever is missing (a checkpoint, a baseline, a log) is skipped with a message.
 """
 

@@ -145,3 +145,15 @@ def test_shared_actor_built_for_five_uavs_runs_nine():
     assert out.shape == (3, 9, 2)
     assert torch.allclose(out[:, :5], net(obs[:, :5]))  # same weights
     assert adapt_n_agents(module, 5) is module
+
+
+def test_every_policy_sees_the_same_starts():
+    # The policies' scenario overrides (field of view, instinct, velocity actions) do not touch
+    # the spawn draws, so with EVAL_SEED every policy starts from the same layouts.
+    layouts = []
+    for overrides in ({}, ev.load_policy_config("policy3_g")["env"], ev.load_policy_config("policy1")["env"],
+                      {"fov": 0.5 * math.pi, "instinct": False, "action_mode": "velocity"}):
+        td = FlockingEnv("s5", num_envs=8, seed=ev.EVAL_SEED, **overrides).reset()
+        layouts.append((td["agents", "position"], td["agents", "heading"], td["goal"], td["obstacles", "position"]))
+    for other in layouts[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(layouts[0], other))
