@@ -6,12 +6,12 @@
 from .checkpoint import CheckpointError, load_policy
 from .config import ConfigError, ScenarioConfig, available_scenarios, load_scenario
 from .env import FlockingEnv
-from .evaluation import evaluate
+from .evaluation import EVAL_SEED, EvaluationResult, evaluate
 from .policies import make_env_overrides, make_policy
 from .trainer import make_train_config, train
 
 __all__ = [
-    "CheckpointError", "ConfigError", "FlockingEnv", "ScenarioConfig", "available_scenarios", "evaluate",
+    "CheckpointError", "ConfigError", "EVAL_SEED", "EvaluationResult", "FlockingEnv", "ScenarioConfig", "available_scenarios", "evaluate",
     "load_policy", "load_scenario", "make_env_overrides", "make_policy", "make_train_config", "train",
 ]
 __version__ = "0.1.0"

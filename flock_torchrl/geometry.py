@@ -84,28 +84,33 @@ def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Te
 def _ray_rectangle(origin: torch.Tensor, direction: torch.Tensor, rects: torch.Tensor) -> torch.Tensor:
     """Distance along unit rays to axis-aligned rectangles (slab test).
 
-    Shapes as in :func:`_ray_circle` with ``rects`` ``[B, 1, 1, R, 4]``. A ray parallel to a
-    slab only hits if its origin lies between the slab's two lines.
+    Shapes as in :func:`_ray_circle` with ``rects`` ``[B, 1, 1, R, 4]``. The slabs are solved
+    one axis at a time on ``[B, N, K, R]`` tensors (the ray-invariant parts stay
+    ``[B, N, 1, R]``). A direction component below 1e-12 is replaced by +1e-12: the slab
+    interval then becomes about +-1e13 m, i.e. "all of the line" when the origin lies between
+    the slab's two lines (on them included) and "beyond any range" otherwise, which is the
+    exact parallel-ray answer once beams are capped at their range.
     """
-    lo = rects[..., :2] - rects[..., 2:] / 2
-    hi = rects[..., :2] + rects[..., 2:] / 2
-    inside_slab = (origin >= lo) & (origin <= hi)
-    parallel = direction.abs() < 1e-12
-    safe_dir = torch.where(parallel, torch.ones_like(direction), direction)
-    t1 = (lo - origin) / safe_dir
-    t2 = (hi - origin) / safe_dir
-    t_enter = torch.minimum(t1, t2)
-    t_exit = torch.maximum(t1, t2)
-    inf = torch.full_like(t_enter, math.inf)
-    # Parallel axis: the slab is either the whole line or nothing.
-    t_enter = torch.where(parallel, torch.where(inside_slab, -inf, inf), t_enter)
-    t_exit = torch.where(parallel, torch.where(inside_slab, inf, -inf), t_exit)
-    t_near = t_enter.amax(-1)
-    t_far = t_exit.amin(-1)
-    inside = inside_slab.all(-1)
+    half = rects[..., 2:] / 2
+    lo = (rects[..., :2] - half - origin).squeeze(-3)  # [B, N, R, 2] offsets of the slab lines
+    hi = (rects[..., :2] + half - origin).squeeze(-3)
+    inside = ((lo <= 0) & (hi >= 0)).all(-1).unsqueeze(-2)  # [B, N, 1, R]
+    # Edges are part of the rectangle: an origin exactly on a slab line counts as between the
+    # lines, also for a ray running along that line.
+    lo = torch.where(lo == 0, -1e-6, lo)
+    hi = torch.where(hi == 0, 1e-6, hi)
+    tiny = 1e-12
+    safe = torch.where(direction.abs() < tiny, torch.full_like(direction, tiny), direction)
+    inv = (1.0 / safe).squeeze(-2)  # [B, N, K, 2]
+    lo, hi = lo.unsqueeze(-3), hi.unsqueeze(-3)  # [B, N, 1, R, 2]
+    inv_x, inv_y = inv[..., 0, None], inv[..., 1, None]  # [B, N, K, 1]
+    tx1, tx2 = lo[..., 0] * inv_x, hi[..., 0] * inv_x
+    ty1, ty2 = lo[..., 1] * inv_y, hi[..., 1] * inv_y
+    t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
+    t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
     hit = (t_far >= t_near) & (t_far >= 0)
-    t = torch.where(hit, t_near.clamp_min(0.0), torch.full_like(t_near, math.inf))
-    return torch.where(inside, torch.zeros_like(t), t)
+    t = torch.where(hit, t_near.clamp_min(0.0), math.inf)
+    return torch.where(inside, 0.0, t)
 
 
 def cast_rays(
