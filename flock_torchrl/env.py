@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -18,7 +19,7 @@ from .instinct import instinct_command
 from .metrics import METRIC_KEYS, episode_summary, new_accumulator, step_statistics, update_episode
 from .reward import total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
-                      scan_observation, swarm_centre_state)
+                      scan_observation, swarm_centre_state, visibility)
 from .spawn import sample_layout
 
 
@@ -169,7 +170,10 @@ class FlockingEnv(EnvBase):
         obstacles = self.obstacles()
         beams, beam_obstacle = laser_scan(self.position, self.heading, obstacles, cfg.n_beams, cfg.laser_range)
         true_neighbours = observe_neighbours(self.position, self.heading, cfg.camera_range, cfg.fov)
-        all_round = observe_neighbours(self.position, self.heading, cfg.camera_range, 2 * math.pi)
+        # The critic's camera sees all round (phi_v = 2 pi): same measurements, wider visibility.
+        all_round = dataclasses.replace(
+            true_neighbours, visible=visibility(true_neighbours.distance, true_neighbours.bearing,
+                                                cfg.camera_range, 2 * math.pi))
         sensed_beams, neighbours = beams, true_neighbours
         if cfg.noise:
             sensed_beams, neighbours = add_sensor_noise(
