@@ -9,8 +9,10 @@ table of candidates and the chosen values; copy those into the YAML (with their 
 
     python scripts/tune_baselines.py                    # both controllers, 128 episodes each
     python scripts/tune_baselines.py --controller policy_ma --episodes 200
+    python scripts/tune_baselines.py --evaluate --episodes 500   # the YAMLs' values on train and S1-S5
 
-Never tunes on S1-S5. Single-threaded on purpose (shared machines): a few minutes on CPU.
+Never tunes on S1-S5; ``--evaluate`` only measures the chosen values there (evaluation seed
+2024, the same starts for every policy) and prints them beside the paper's Tables III / IV. Single-threaded on purpose (shared machines): a few minutes on CPU.
 """
 
 from __future__ import annotations
@@ -23,7 +25,11 @@ import time
 import torch
 
 from flock_torchrl.baselines import (CONTROLLERS, baseline_env, controller_params, evaluate_policy,
-                                     load_baseline_config, summarize)
+                                     load_baseline_config, make_baseline, summarize)
+from flock_torchrl.evaluation import EVAL_SEED
+from flock_torchrl.tables import load_reference
+
+METRICS = ("success", "safe_success", "d_min_obs", "d_min_uav", "d_c", "v_error", "phi_error", "speed", "t_goal")
 
 # The few parameters that decide how the flock meets obstacles and itself. Ranges follow
 # BASELINES.md's rescaling notes: spacing 2-4 m with r = 1.2 d inside the 5 m camera range;
@@ -88,6 +94,44 @@ def tune(name: str, episodes: int, seed: int, max_steps: int) -> dict[str, float
     return best
 
 
+def paper_rows() -> dict[tuple[str, str], dict[str, str]]:
+    """The paper's rows ``{(scenario, policy): row}``: Table III is the training scenario."""
+    rows = {("train", r["policy"]): r for r in load_reference(3)[1]}
+    rows.update({(r["scenario"].lower(), r["policy"]): r for r in load_reference(4)[1]})
+    return rows
+
+
+def evaluate_all(names: list[str], episodes: int, scenarios: list[str]) -> None:
+    """Measured cells (mean ± std) of the YAMLs' parameters beside the paper's, one line each."""
+    paper = paper_rows()
+    print(f"{'scenario':<8} {'policy':<10} {'src':<5} " + " ".join(f"{m:>14}" for m in METRICS) + "  [s]")
+    for scenario in scenarios:
+        for name in names:
+            cfg = load_baseline_config(name)
+            env = baseline_env(cfg, scenario, num_envs=episodes, seed=EVAL_SEED)
+            start = time.time()
+            metrics = evaluate_policy(env, make_baseline(cfg, env))
+            summary = summarize(metrics)
+            # Failures split into crashes and flocks stuck until T_max; speed and d_c over the
+            # successful episodes alone (a stuck flock drags the all-episode means down / up).
+            won = summarize(metrics[metrics["success"]]) if bool(metrics["success"].any()) else None
+            extra = (f"crashed {metrics['crashed'].float().mean().item():.3f}, "
+                     f"stuck {(~metrics['reached'] & ~metrics['crashed']).float().mean().item():.3f}")
+            if won is not None:
+                extra += f"; successes only: speed {won['speed'][0]:.3f}, d_c {won['d_c'][0]:.3f}"
+            cells = []
+            for m in METRICS:
+                mean, std = summary[m]
+                cells.append(f"{mean:>14.3f}" if m in ("success", "safe_success") else f"{mean:>7.3f}±{std:<6.3f}")
+            print(f"{scenario:<8} {cfg.name:<10} {'ours':<5} " + " ".join(cells) + f"  {time.time() - start:.0f}  ({extra})",
+                  flush=True)
+            ref = paper.get((scenario, cfg.name))
+            if ref is not None:
+                cells = [f"{float(ref['success_rate']):>14.3f}", f"{'-':>14}"]
+                cells += [f"{float(ref[m]):>7.3f}±{float(ref[m + '_std']):<6.3f}" for m in METRICS[2:]]
+                print(f"{'':<8} {'':<10} {'paper':<5} " + " ".join(cells))
+
+
 def main() -> None:
     start = time.time()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -98,9 +142,16 @@ def main() -> None:
                              "the failures are stuck flocks, so the last 100 s steps only cost time")
     parser.add_argument("--seed", type=int, default=1000, help="env seed (not the evaluation seed 2024)")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--evaluate", action="store_true",
+                        help="measure the YAMLs' values on train and S1-S5 instead of tuning")
+    parser.add_argument("--scenarios", nargs="+", default=["train", "s1", "s2", "s3", "s4", "s5"])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     names = sorted(GRIDS) if args.controller == "all" else [args.controller]
+    if args.evaluate:
+        evaluate_all(names, args.episodes, args.scenarios)
+        print(f"total {time.time() - start:.0f} s")
+        return
     chosen = {name: tune(name, args.episodes, args.seed, args.max_steps) for name in names}
     print("\n# chosen values (paste into conf/policy/<name>.yaml params):")
     for name, point in chosen.items():
