@@ -8,6 +8,7 @@ import math
 import pytest
 import torch
 from omegaconf import OmegaConf
+from tensordict.nn import TensorDictModuleBase
 
 from flock_torchrl import FlockingEnv
 from flock_torchrl.baselines import (BASELINES, OlfatiSaberParams, VasarhelyiParams, baseline_env,
@@ -236,6 +237,15 @@ def test_yaml_documents_every_parameter(name):
     assert cfg.kind == "rule" and cfg.env["action_mode"] == "velocity" and cfg.env["instinct"] is False
     assert cfg.env["fov"] == pytest.approx(math.pi / 2)
     assert dataclasses.asdict(params) == pytest.approx(dataclasses.asdict(type(params)()))  # defaults = YAML
+
+
+def test_make_baseline_accepts_a_config_node():
+    node = OmegaConf.to_container(load_group("policy", "policy_op"), resolve=True)
+    node["params"]["v_flock"] = 2.0
+    policy = make_baseline(node, "s1")
+    assert isinstance(policy, TensorDictModuleBase) and policy.params.v_flock == 2.0
+    assert policy.env_cfg.action_mode == "velocity" and policy.env_cfg.fov == pytest.approx(math.pi / 2)
+    assert ("agents", "action") in policy.out_keys and ("agents", "scan_obstacle") in policy.in_keys
 
 
 def test_bad_params_fail_naming_the_field():

@@ -30,6 +30,7 @@ from ..env import FlockingEnv
 from ..schema import PolicyConfig, load_group, validate_policy
 from .olfati_saber import OlfatiSaberParams, OlfatiSaberPolicy
 from .params import params_from_mapping
+from .sensing import RuleBasedPolicy
 from .vasarhelyi import VasarhelyiParams, VasarhelyiPolicy
 
 CONTROLLERS: dict[str, tuple[type, type]] = {
@@ -165,6 +166,7 @@ def summarize(metrics: TensorDictBase) -> dict[str, tuple[float, float]]:
 
 
 __all__ = [
-    "BASELINES", "CONTROLLERS", "OlfatiSaberParams", "OlfatiSaberPolicy", "VasarhelyiParams", "VasarhelyiPolicy",
+    "BASELINES", "CONTROLLERS", "OlfatiSaberParams", "OlfatiSaberPolicy", "RuleBasedPolicy", "VasarhelyiParams",
+    "VasarhelyiPolicy",
     "baseline_env", "controller_params", "evaluate_policy", "load_baseline_config", "make_baseline", "summarize",
 ]

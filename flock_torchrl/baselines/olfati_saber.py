@@ -22,11 +22,9 @@ import math
 from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 
 from .params import check_params, raise_param
-from .sensing import cap_norm, nearest_hits, neighbour_view, obstacle_count
+from .sensing import Percept, RuleBasedPolicy, cap_norm
 
 # --------------------------------------------------------------------------- helpers (Sec. II-IV)
 
@@ -270,15 +268,14 @@ class OlfatiSaberParams:
             raise_param(self, "r", f"the interaction range must exceed the spacing d={self.d}, got {self.r}")
 
 
-class OlfatiSaberPolicy(TensorDictModuleBase):
+class OlfatiSaberPolicy(RuleBasedPolicy):
     """Policy-MA as a TensorDict module: reads the env's raw sensing, writes the velocity command.
 
     Needs the env built with ``action_mode="velocity"``. Works on any device (that of the inputs).
 
     Args:
         params: :class:`OlfatiSaberParams`.
-        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`): camera range and
-            field of view, ``tau_v``, ``v_max``, obstacle count, S4 noise.
+        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`).
         seed: seed of the S4 camera-noise generator.
 
     Example:
@@ -290,48 +287,22 @@ class OlfatiSaberPolicy(TensorDictModuleBase):
         torch.Size([2, 3, 5, 2])
     """
 
-    in_keys = [("agents", "position"), ("agents", "velocity"), ("agents", "heading"), ("agents", "scan"),
-               ("agents", "scan_obstacle"), "goal"]
-    out_keys = [("agents", "action")]
+    params: OlfatiSaberParams
 
-    def __init__(self, params: OlfatiSaberParams, env_cfg, seed: int = 0) -> None:
-        super().__init__()
-        self.params, self.env_cfg, self.seed = params, env_cfg, seed
-        self.n_obstacles = obstacle_count(env_cfg)
-        self._generator: torch.Generator | None = None
-
-    def _noise(self, device: torch.device):
-        if not self.env_cfg.noise:
-            return None, None
-        if self._generator is None or self._generator.device != device:
-            self._generator = torch.Generator(device=device)
-            self._generator.manual_seed(self.seed)
-        return (self.env_cfg.noise_distance, self.env_cfg.noise_angle), self._generator
-
-    def acceleration(self, tensordict: TensorDictBase) -> torch.Tensor:
-        """``u_i`` of Eq. 59 ``[B, N, 2]`` from the sensed quantities in ``tensordict``."""
-        p, cfg = self.params, self.env_cfg
-        position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
-        heading = tensordict["agents", "heading"]
-        noise, generator = self._noise(position.device)
-        view = neighbour_view(position, velocity, heading, cfg.camera_range, cfg.fov, noise, generator)
+    def acceleration(self, percept: Percept) -> torch.Tensor:
+        """``u_i`` of Eq. 59, ``[B, N, 2]``."""
+        p, view, hits, velocity = self.params, percept.neighbours, percept.obstacles, percept.velocity
         grad_a, cons_a = alpha_terms(view.offset, view.relative_velocity, view.visible, eps=p.eps, r=p.r, d=p.d,
                                      h=p.h_alpha, a=p.a, b=p.b)
-        hits = nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
-                            self.n_obstacles)
         beta_offset, beta_velocity = beta_agents_from_scan(hits.offset, hits.normal, velocity)
         grad_b, cons_b = beta_terms(beta_offset, beta_velocity, velocity, hits.seen, eps=p.eps, d_beta=p.d_beta,
                                     r_beta=p.r_beta, h=p.h_beta)
-        to_goal = tensordict["goal"][:, None, :] - position
         return (p.c1_alpha * grad_a + p.c2_alpha * cons_a + p.c1_beta * grad_b + p.c2_beta * cons_b
-                + gamma_term(to_goal, velocity, p.c1_gamma, p.c2_gamma))
+                + gamma_term(percept.to_goal, velocity, p.c1_gamma, p.c2_gamma))
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        velocity = tensordict["agents", "velocity"]
-        command = acceleration_to_command(velocity, self.acceleration(tensordict), self.env_cfg.tau_v,
-                                          self.env_cfg.v_max)
-        tensordict.set(("agents", "action"), command)
-        return tensordict
+    def command(self, percept: Percept) -> torch.Tensor:
+        return acceleration_to_command(percept.velocity, self.acceleration(percept), self.env_cfg.tau_v,
+                                       self.env_cfg.v_max)
 
 
 __all__ = [

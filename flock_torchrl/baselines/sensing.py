@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 
 from ..sensors import add_sensor_noise, beam_offsets, observe_neighbours
 
@@ -130,4 +133,69 @@ def unit(vector: torch.Tensor, eps: float = 1e-9) -> torch.Tensor:
     return vector / torch.linalg.vector_norm(vector, dim=-1, keepdim=True).clamp_min(eps)
 
 
-__all__ = ["NeighbourView", "ObstacleView", "cap_norm", "nearest_hits", "neighbour_view", "obstacle_count", "unit"]
+@dataclass
+class Percept:
+    """Everything a rule-based UAV knows at one step, batched ``[B, N, ...]``."""
+
+    velocity: torch.Tensor      # own velocity p_i [B, N, 2]
+    to_goal: torch.Tensor       # q_goal - q_i [B, N, 2]
+    neighbours: NeighbourView   # the camera's view [B, N, N]
+    obstacles: ObstacleView     # nearest laser hit per obstacle [B, N, M]
+
+
+class RuleBasedPolicy(TensorDictModuleBase):
+    """Base of the baselines' modules: reads the env's raw sensing, writes the velocity command.
+
+    Subclasses implement :meth:`command` on a :class:`Percept`. The env must run with
+    ``action_mode="velocity"``. Works on the inputs' device.
+
+    Args:
+        params: the controller's parameter dataclass.
+        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`): camera range and
+            field of view, ``tau_v``, ``v_max``, obstacle count, S4 noise.
+        seed: seed of the S4 camera-noise generator (the env does not expose its noisy camera
+            measurements, so the module draws the same noise model itself).
+    """
+
+    def __init__(self, params: Any, env_cfg: Any, seed: int = 0) -> None:
+        super().__init__()
+        self.in_keys = [("agents", "position"), ("agents", "velocity"), ("agents", "heading"),
+                        ("agents", "scan"), ("agents", "scan_obstacle"), "goal"]
+        self.out_keys = [("agents", "action")]
+        self.params, self.env_cfg, self.seed = params, env_cfg, seed
+        self.n_obstacles = obstacle_count(env_cfg)
+        self._generator: torch.Generator | None = None
+
+    def _camera_noise(self, device: torch.device):
+        if not self.env_cfg.noise:
+            return None, None
+        if self._generator is None or self._generator.device != device:
+            self._generator = torch.Generator(device=device)
+            self._generator.manual_seed(self.seed)
+        return (self.env_cfg.noise_distance, self.env_cfg.noise_angle), self._generator
+
+    def perceive(self, tensordict: TensorDictBase) -> Percept:
+        """The sensor-limited view of every UAV from the env's tensordict."""
+        cfg = self.env_cfg
+        position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
+        heading = tensordict["agents", "heading"]
+        noise, generator = self._camera_noise(position.device)
+        return Percept(
+            velocity=velocity,
+            to_goal=tensordict["goal"][:, None, :] - position,
+            neighbours=neighbour_view(position, velocity, heading, cfg.camera_range, cfg.fov, noise, generator),
+            obstacles=nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
+                                   self.n_obstacles),
+        )
+
+    def command(self, percept: Percept) -> torch.Tensor:
+        """Velocity command ``[B, N, 2]``."""
+        raise NotImplementedError
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        tensordict.set(("agents", "action"), self.command(self.perceive(tensordict)))
+        return tensordict
+
+
+__all__ = ["NeighbourView", "ObstacleView", "Percept", "RuleBasedPolicy", "cap_norm", "nearest_hits",
+           "neighbour_view", "obstacle_count", "unit"]

@@ -20,11 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 
 from .params import check_params
-from .sensing import cap_norm, nearest_hits, neighbour_view, obstacle_count, unit
+from .sensing import Percept, RuleBasedPolicy, cap_norm, unit
 
 
 def braking_curve(r: torch.Tensor, a: float, p: float) -> torch.Tensor:
@@ -131,15 +129,14 @@ class VasarhelyiParams:
                      non_negative=("p_rep", "r0_frict", "c_frict", "v_frict", "r0_shill"))
 
 
-class VasarhelyiPolicy(TensorDictModuleBase):
+class VasarhelyiPolicy(RuleBasedPolicy):
     """Policy-OP as a TensorDict module: reads the env's raw sensing, writes the velocity command.
 
     Needs the env built with ``action_mode="velocity"``. Works on any device (that of the inputs).
 
     Args:
         params: :class:`VasarhelyiParams`.
-        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`): camera range and
-            field of view, ``v_max``, obstacle count, S4 noise.
+        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`).
         seed: seed of the S4 camera-noise generator.
 
     Example:
@@ -151,45 +148,18 @@ class VasarhelyiPolicy(TensorDictModuleBase):
         torch.Size([2, 3, 5, 2])
     """
 
-    in_keys = [("agents", "position"), ("agents", "velocity"), ("agents", "heading"), ("agents", "scan"),
-               ("agents", "scan_obstacle"), "goal"]
-    out_keys = [("agents", "action")]
+    params: VasarhelyiParams
 
-    def __init__(self, params: VasarhelyiParams, env_cfg, seed: int = 0) -> None:
-        super().__init__()
-        self.params, self.env_cfg, self.seed = params, env_cfg, seed
-        self.n_obstacles = obstacle_count(env_cfg)
-        self._generator: torch.Generator | None = None
-
-    def _noise(self, device: torch.device):
-        if not self.env_cfg.noise:
-            return None, None
-        if self._generator is None or self._generator.device != device:
-            self._generator = torch.Generator(device=device)
-            self._generator.manual_seed(self.seed)
-        return (self.env_cfg.noise_distance, self.env_cfg.noise_angle), self._generator
-
-    def desired_velocity(self, tensordict: TensorDictBase) -> torch.Tensor:
-        """``v_d`` of Eq. 9-10 ``[B, N, 2]``, capped at ``min(v_max, env v_max)``."""
-        p, cfg = self.params, self.env_cfg
-        position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
-        heading = tensordict["agents", "heading"]
-        noise, generator = self._noise(position.device)
-        view = neighbour_view(position, velocity, heading, cfg.camera_range, cfg.fov, noise, generator)
-        hits = nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
-                            self.n_obstacles)
-        to_goal = tensordict["goal"][:, None, :] - position
-        desired = (self_propulsion(to_goal, p.v_flock)
+    def command(self, percept: Percept) -> torch.Tensor:
+        """``v_d`` of Eq. 9-10 ``[B, N, 2]``, capped at ``min(v_max, scenario v_max)``."""
+        p, view, hits = self.params, percept.neighbours, percept.obstacles
+        desired = (self_propulsion(percept.to_goal, p.v_flock)
                    + repulsion(view.offset, view.distance, view.visible, p.p_rep, p.r0_rep)
                    + friction(view.relative_velocity, view.distance, view.visible, c_frict=p.c_frict,
                               v_frict=p.v_frict, r0_frict=p.r0_frict, a_frict=p.a_frict, p_frict=p.p_frict)
-                   + shill(hits.distance, hits.normal, hits.seen, velocity, v_shill=p.v_shill,
+                   + shill(hits.distance, hits.normal, hits.seen, percept.velocity, v_shill=p.v_shill,
                            r0_shill=p.r0_shill, a_shill=p.a_shill, p_shill=p.p_shill))
-        return cap_norm(desired, min(p.v_max, cfg.v_max))
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        tensordict.set(("agents", "action"), self.desired_velocity(tensordict))
-        return tensordict
+        return cap_norm(desired, min(p.v_max, self.env_cfg.v_max))
 
 
 __all__ = ["VasarhelyiParams", "VasarhelyiPolicy", "braking_curve", "friction", "repulsion", "self_propulsion",
