@@ -399,6 +399,8 @@ def train(cfg: DictConfig | dict) -> TrainResult:
                 if key != "frames":
                     logger.log_scalar(f"eval/{key}", value, step=counters["frames"])
     path = save()
+    if rc.logger.backend == "wandb" and logger is not None:
+        logger.experiment.finish()
     return TrainResult(run_dir, path, counters["frames"], counters["episodes"], counters["updates"],
                        counters["seconds"], evaluations)
 

@@ -152,3 +152,11 @@ def test_resume_auto_starts_fresh_then_leaves_a_finished_run_unchanged(tmp_path)
     assert after["counters"]["frames"] == before["counters"]["frames"]
     for key, value in before["actor"].items():
         assert torch.equal(value, after["actor"][key]), key
+
+
+def test_wandb_logger_works_offline(tmp_path, monkeypatch):
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    cfg = make_train_config("policy3_g", "tiny", logger="wandb", run_dir=str(tmp_path / "wb"), seed=0,
+                            overrides={"scenario.max_steps": 40, "experiment.max_frames": 48})
+    train(cfg)
+    assert list((tmp_path / "wb" / "wandb").glob("offline-run-*")), "no offline wandb run was written"
