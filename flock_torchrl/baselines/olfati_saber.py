@@ -1,9 +1,10 @@
 """Policy-MA: Olfati-Saber 2006 flocking, Algorithm 3 (alpha-, beta- and gamma-agents).
 
 R. Olfati-Saber, "Flocking for multi-agent dynamic systems: algorithms and theory",
-IEEE TAC 51(3), 2006. Equation numbers below are that paper's; the helpers are its Sec. II-IV
-(sigma-norm Eq. 8, its gradient Eq. 9, bump Eq. 10, action functions Eq. 15-16 and 56),
-the beta-agents Sec. VII-A (Lemma 3) and the protocol Eq. 59 (alpha + beta + gamma).
+IEEE TAC 51(3), 2006. Each helper's docstring states the paper's formula (as collected in
+the project's BASELINES.md): sigma-norm and its gradient, the bump function, the action
+functions phi, phi_alpha, phi_beta, the beta-agents of walls and circles, and the protocol of
+Algorithm 3, ``u = alpha terms + beta terms + gamma term``.
 
 Each UAV is a double integrator for the protocol: ``u_i`` is an acceleration. This world's
 UAVs take a velocity command through a first-order lag (Eq. 1 of Bai et al.,
@@ -26,11 +27,11 @@ import torch
 from .params import check_params, raise_param
 from .sensing import Percept, RuleBasedPolicy, cap_norm
 
-# --------------------------------------------------------------------------- helpers (Sec. II-IV)
+# --------------------------------------------------------------------------- helpers
 
 
 def sigma_norm(z: torch.Tensor, eps: float) -> torch.Tensor:
-    """Sigma-norm ``||z||_s = (sqrt(1 + eps ||z||^2) - 1) / eps`` (Eq. 8).
+    """Sigma-norm ``||z||_s = (sqrt(1 + eps ||z||^2) - 1) / eps``.
 
     Args:
         z: vectors ``[..., 2]``. Returns ``[...]``.
@@ -39,33 +40,33 @@ def sigma_norm(z: torch.Tensor, eps: float) -> torch.Tensor:
 
 
 def sigma_norm_of_length(length: torch.Tensor | float, eps: float) -> torch.Tensor | float:
-    """Sigma-norm of a vector of Euclidean length ``length`` (Eq. 8), elementwise."""
+    """Sigma-norm of a vector of Euclidean length ``length``, elementwise."""
     if isinstance(length, torch.Tensor):
         return (torch.sqrt(1.0 + eps * length * length) - 1.0) / eps
     return (math.sqrt(1.0 + eps * length * length) - 1.0) / eps
 
 
 def sigma_gradient(z: torch.Tensor, eps: float) -> torch.Tensor:
-    """Gradient of the sigma-norm, ``sigma_eps(z) = z / sqrt(1 + eps ||z||^2)`` (Eq. 9).
+    """Gradient of the sigma-norm, ``sigma_eps(z) = z / sqrt(1 + eps ||z||^2)``.
 
-    ``n_ij = sigma_eps(q_j - q_i)`` (Eq. 23) is the direction of the pair force; note it
+    ``n_ij = sigma_eps(q_j - q_i)`` is the direction of the pair force; note it
     vanishes as two agents touch. ``z`` ``[..., 2]`` -> ``[..., 2]``.
     """
     return z / torch.sqrt(1.0 + eps * (z * z).sum(-1, keepdim=True))
 
 
 def sigma_1(z: torch.Tensor) -> torch.Tensor:
-    """Scalar ``sigma_1(z) = z / sqrt(1 + z^2)``, elementwise (Sec. IV-A)."""
+    """Scalar ``sigma_1(z) = z / sqrt(1 + z^2)``, elementwise."""
     return z / torch.sqrt(1.0 + z * z)
 
 
 def sigma_1_vector(z: torch.Tensor) -> torch.Tensor:
-    """Vector ``sigma_1(z) = z / sqrt(1 + ||z||^2)`` ``[..., 2]`` (gamma-agent term of Eq. 59)."""
+    """Vector ``sigma_1(z) = z / sqrt(1 + ||z||^2)`` ``[..., 2]`` (gamma-agent term of Algorithm 3)."""
     return z / torch.sqrt(1.0 + (z * z).sum(-1, keepdim=True))
 
 
 def bump(z: torch.Tensor, h: float) -> torch.Tensor:
-    """Bump function ``rho_h`` (Eq. 10), elementwise.
+    """Bump function ``rho_h``, elementwise.
 
     1 on ``[0, h)``; ``0.5 (1 + cos(pi (z - h) / (1 - h)))`` on ``[h, 1]``; 0 beyond.
     """
@@ -74,7 +75,7 @@ def bump(z: torch.Tensor, h: float) -> torch.Tensor:
 
 
 def action_phi(z: torch.Tensor, a: float, b: float) -> torch.Tensor:
-    """Uneven sigmoid ``phi(z) = 0.5 ((a + b) sigma_1(z + c) + (a - b))``, ``c = |a - b| / sqrt(4ab)`` (Eq. 15).
+    """Uneven sigmoid ``phi(z) = 0.5 ((a + b) sigma_1(z + c) + (a - b))``, ``c = |a - b| / sqrt(4ab)``.
 
     ``0 < a <= b`` makes ``phi(0) = 0``.
     """
@@ -83,7 +84,7 @@ def action_phi(z: torch.Tensor, a: float, b: float) -> torch.Tensor:
 
 
 def phi_alpha(z: torch.Tensor, r_alpha: float, d_alpha: float, h: float, a: float, b: float) -> torch.Tensor:
-    """Pair action function ``phi_alpha(z) = rho_h(z / r_a) phi(z - d_a)`` (Eq. 16), sigma-norm units.
+    """Pair action function ``phi_alpha(z) = rho_h(z / r_a) phi(z - d_a)``, sigma-norm units.
 
     Negative (repulsive) below ``d_a = ||d||_s``, 0 at it, positive (attractive) up to
     ``r_a = ||r||_s``, 0 beyond.
@@ -92,19 +93,19 @@ def phi_alpha(z: torch.Tensor, r_alpha: float, d_alpha: float, h: float, a: floa
 
 
 def phi_beta(z: torch.Tensor, d_beta: float, h: float) -> torch.Tensor:
-    """Obstacle action function ``phi_beta(z) = rho_h(z / d_b) (sigma_1(z - d_b) - 1)`` (Eq. 56).
+    """Obstacle action function ``phi_beta(z) = rho_h(z / d_b) (sigma_1(z - d_b) - 1)``.
 
     Purely repulsive (``<= 0``), 0 beyond ``d_b = ||d'||_s``.
     """
     return bump(z / d_beta, h) * (sigma_1(z - d_beta) - 1.0)
 
 
-# --------------------------------------------------------------------------- beta-agents (Sec. VII-A)
+# --------------------------------------------------------------------------- beta-agents
 
 
 def beta_agent_wall(position: torch.Tensor, velocity: torch.Tensor, normal: torch.Tensor,
                     point: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Beta-agent of a wall (Lemma 3b): the agent's projection on the line through ``point``.
+    """Beta-agent of a wall (hyperplane obstacle): the agent's projection on the line through ``point``.
 
     ``P = I - a a^T``; ``qh = P q + (I - P) y``; ``ph = P p``.
 
@@ -120,7 +121,7 @@ def beta_agent_wall(position: torch.Tensor, velocity: torch.Tensor, normal: torc
 
 def beta_agent_circle(position: torch.Tensor, velocity: torch.Tensor, centre: torch.Tensor,
                       radius: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Beta-agent of a circular obstacle (Lemma 3a), the agent outside it.
+    """Beta-agent of a circular (spherical) obstacle, the agent outside it.
 
     ``mu = R / ||q - y||``, ``a = (q - y) / ||q - y||``, ``P = I - a a^T``;
     ``qh = mu q + (1 - mu) y``; ``ph = mu P p``.
@@ -142,11 +143,11 @@ def beta_agent_circle(position: torch.Tensor, velocity: torch.Tensor, centre: to
 
 def beta_agents_from_scan(hit_offset: torch.Tensor, hit_normal: torch.Tensor,
                           velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Beta-agents seen by the laser: the wall rule (Lemma 3b) at each obstacle's nearest hit.
+    """Beta-agents seen by the laser: the wall rule at each obstacle's nearest hit.
 
     The nearest hit approximates the agent's projection on the obstacle and the surface there
     is taken as a wall with unit normal ``hit_normal`` (hit -> UAV). So ``qh - q = hit_offset``
-    and ``ph = P p``. For a circle this gives Lemma 3a's ``qh`` exactly (up to beam
+    and ``ph = P p``. For a circle this gives the circle rule's ``qh`` exactly (up to beam
     resolution) and its ``ph`` without the factor ``mu = R / (R + d) < 1``, which the
     laser cannot measure.
 
@@ -160,15 +161,15 @@ def beta_agents_from_scan(hit_offset: torch.Tensor, hit_normal: torch.Tensor,
     return hit_offset, p - (p * hit_normal).sum(-1, keepdim=True) * hit_normal
 
 
-# --------------------------------------------------------------------------- the three terms of Eq. 59
+# --------------------------------------------------------------------------- the three terms of Algorithm 3
 
 
 def alpha_terms(offset: torch.Tensor, relative_velocity: torch.Tensor, visible: torch.Tensor, *, eps: float,
                 r: float, d: float, h: float, a: float, b: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Alpha-agent (UAV-UAV) gradient and consensus sums of Eq. 59 (Algorithm 1, Eq. 23), unscaled.
+    """Alpha-agent (UAV-UAV) gradient and consensus sums of Algorithm 3 (Algorithm 1's protocol), unscaled.
 
     ``sum_j phi_alpha(||q_j - q_i||_s) n_ij`` and ``sum_j a_ij (p_j - p_i)`` with
-    ``a_ij = rho_h(||q_j - q_i||_s / r_a)`` (Eq. 11), over the neighbours ``j`` that ``i`` sees.
+    ``a_ij = rho_h(||q_j - q_i||_s / r_a)``, over the neighbours ``j`` that ``i`` sees.
 
     Args:
         offset: ``q_j - q_i`` ``[B, N, N, 2]``; relative_velocity: ``p_j - p_i`` ``[B, N, N, 2]``;
@@ -189,10 +190,10 @@ def alpha_terms(offset: torch.Tensor, relative_velocity: torch.Tensor, visible: 
 
 def beta_terms(beta_offset: torch.Tensor, beta_velocity: torch.Tensor, velocity: torch.Tensor, seen: torch.Tensor,
                *, eps: float, d_beta: float, r_beta: float, h: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Beta-agent (obstacle) gradient and consensus sums of Eq. 59, unscaled.
+    """Beta-agent (obstacle) gradient and consensus sums of Algorithm 3, unscaled.
 
     ``sum_k phi_beta(||qh_k - q_i||_s) nh_ik`` with ``nh_ik = sigma_eps(qh_k - q_i)`` and
-    ``sum_k b_ik (ph_k - p_i)`` with ``b_ik = rho_h(||qh_k - q_i||_s / d_b)`` (Eq. 57), over the
+    ``sum_k b_ik (ph_k - p_i)`` with ``b_ik = rho_h(||qh_k - q_i||_s / d_b)``, over the
     beta-agents within ``r'`` (``r_beta``) of the UAV.
 
     Args:
@@ -214,7 +215,7 @@ def beta_terms(beta_offset: torch.Tensor, beta_velocity: torch.Tensor, velocity:
 
 
 def gamma_term(to_goal: torch.Tensor, velocity: torch.Tensor, c1: float, c2: float) -> torch.Tensor:
-    """Gamma-agent navigational feedback of Eq. 59 for a static goal (``p_r = 0``).
+    """Gamma-agent navigational feedback of Algorithm 3 for a static goal (``p_r = 0``).
 
     ``-c1 sigma_1(q_i - q_r) - c2 (p_i - p_r) = c1 sigma_1(q_r - q_i) - c2 p_i``. Far from the
     goal the attraction saturates at ``c1``, so the cruise speed is about ``c1 / c2``.
@@ -240,7 +241,7 @@ def acceleration_to_command(velocity: torch.Tensor, acceleration: torch.Tensor, 
 
 @dataclass
 class OlfatiSaberParams:
-    """Algorithm 3's constants (Sec. VIII's values, rescaled to this world in ``conf/policy/policy_ma.yaml``)."""
+    """Algorithm 3's constants (the paper's simulation values, rescaled to this world in ``conf/policy/policy_ma.yaml``)."""
 
     eps: float = 0.1          # sigma-norm parameter
     a: float = 5.0            # phi's repulsive / attractive plateaus (0 < a <= b)
@@ -290,7 +291,7 @@ class OlfatiSaberPolicy(RuleBasedPolicy):
     params: OlfatiSaberParams
 
     def acceleration(self, percept: Percept) -> torch.Tensor:
-        """``u_i`` of Eq. 59, ``[B, N, 2]``."""
+        """``u_i`` of Algorithm 3, ``[B, N, 2]``."""
         p, view, hits, velocity = self.params, percept.neighbours, percept.obstacles, percept.velocity
         grad_a, cons_a = alpha_terms(view.offset, view.relative_velocity, view.visible, eps=p.eps, r=p.r, d=p.d,
                                      h=p.h_alpha, a=p.a, b=p.b)

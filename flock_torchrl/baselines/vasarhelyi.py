@@ -2,10 +2,10 @@
 
 G. Vasarhelyi, Cs. Viragh, G. Somorjai, T. Nepusz, A. E. Eiben, T. Vicsek, "Optimized
 flocking of autonomous drones in confined environments", Science Robotics 3(20), 2018.
-Equation numbers below are that paper's (Materials and Methods): self-propulsion, linear
-short-range repulsion (Eq. 2), the braking curve D (Eq. 3), velocity alignment as friction
-(Eq. 4-5), shill agents at obstacles (Eq. 6-8), and the desired velocity with its speed cap
-(Eq. 9-10).
+Its terms (Materials and Methods; each docstring states the formula, as collected in the
+project's BASELINES.md): self-propulsion, linear short-range repulsion, the optimal braking
+curve D, velocity alignment as friction, shill agents at obstacles, and the desired velocity
+as their sum with a speed cap.
 
 The controller outputs a desired velocity, which is exactly this world's command (Eq. 1 of
 Bai et al. has the same first-order robot model as the paper's simulator). The original has
@@ -26,7 +26,7 @@ from .sensing import Percept, RuleBasedPolicy, cap_norm, unit
 
 
 def braking_curve(r: torch.Tensor, a: float, p: float) -> torch.Tensor:
-    """Optimal braking curve ``D(r, a, p)`` (Eq. 3), elementwise.
+    """Optimal braking curve ``D(r, a, p)``, elementwise.
 
     0 for ``r <= 0``; ``r p`` for ``0 < r < a / p^2``; ``sqrt(2 a r - a^2 / p^2)`` beyond: the
     largest speed from which one can stop within ``r`` at deceleration ``a`` (with a linear
@@ -49,7 +49,7 @@ def self_propulsion(to_goal: torch.Tensor, v_flock: float) -> torch.Tensor:
 
 def repulsion(offset: torch.Tensor, distance: torch.Tensor, visible: torch.Tensor, p_rep: float,
               r0_rep: float) -> torch.Tensor:
-    """Linear short-range repulsion (Eq. 2): ``sum_j p_rep (r0 - r_ij) (q_i - q_j) / r_ij`` for ``r_ij < r0``.
+    """Linear short-range repulsion: ``sum_j p_rep (r0 - r_ij) (q_i - q_j) / r_ij`` for ``r_ij < r0``.
 
     Args:
         offset: ``q_j - q_i`` ``[B, N, N, 2]``; distance: ``r_ij`` ``[B, N, N]``; visible: ``[B, N, N]``.
@@ -64,7 +64,7 @@ def repulsion(offset: torch.Tensor, distance: torch.Tensor, visible: torch.Tenso
 
 def friction(relative_velocity: torch.Tensor, distance: torch.Tensor, visible: torch.Tensor, *, c_frict: float,
              v_frict: float, r0_frict: float, a_frict: float, p_frict: float) -> torch.Tensor:
-    """Velocity alignment as viscous friction (Eq. 4-5).
+    """Velocity alignment as viscous friction.
 
     ``v_ij = |v_j - v_i|``, ``v_ij^max = max(v_frict, D(r_ij - r0_frict, a_frict, p_frict))``;
     ``sum_j C_frict (v_ij - v_ij^max) (v_j - v_i) / v_ij`` where ``v_ij > v_ij^max``: velocity
@@ -84,7 +84,7 @@ def friction(relative_velocity: torch.Tensor, distance: torch.Tensor, visible: t
 
 def shill(hit_distance: torch.Tensor, hit_normal: torch.Tensor, seen: torch.Tensor, velocity: torch.Tensor, *,
           v_shill: float, r0_shill: float, a_shill: float, p_shill: float) -> torch.Tensor:
-    """Obstacle avoidance by shill agents (Eq. 6-8), one per obstacle at its nearest laser hit.
+    """Obstacle avoidance by shill agents, one per obstacle at its nearest laser hit.
 
     The shill agent moves at ``v_s = v_shill n`` (``n`` the surface normal, hit -> UAV);
     ``v_is = |v_s - v_i|``; the UAV aligns with it when ``v_is`` exceeds the braking curve
@@ -110,7 +110,7 @@ class VasarhelyiParams:
     """The 2018 paper's evolved parameters, rescaled to this world in ``conf/policy/policy_op.yaml``."""
 
     v_flock: float = 3.0      # preferred speed (m/s)
-    v_max: float = 3.0        # speed cap on the desired velocity (m/s), Eq. 10
+    v_max: float = 3.0        # speed cap on the desired velocity (m/s)
     r0_rep: float = 3.5       # repulsion range (m)
     p_rep: float = 0.8        # repulsion gain (1/s)
     r0_frict: float = 4.0     # friction: distance where the braking-curve slack starts (m)
@@ -151,7 +151,7 @@ class VasarhelyiPolicy(RuleBasedPolicy):
     params: VasarhelyiParams
 
     def command(self, percept: Percept) -> torch.Tensor:
-        """``v_d`` of Eq. 9-10 ``[B, N, 2]``, capped at ``min(v_max, scenario v_max)``."""
+        """``v_d`` (sum of the terms) ``[B, N, 2]``, capped at ``min(v_max, scenario v_max)``."""
         p, view, hits = self.params, percept.neighbours, percept.obstacles
         desired = (self_propulsion(percept.to_goal, p.v_flock)
                    + repulsion(view.offset, view.distance, view.visible, p.p_rep, p.r0_rep)
