@@ -257,9 +257,6 @@ def train(cfg: DictConfig | dict) -> TrainResult:
     elif ckpt_path.exists() and rc.resume is False:
         raise CheckpointError(f"{run_dir} already holds a checkpoint; pass resume=true to continue it, "
                               "or choose another run_dir (nothing was changed)")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    OmegaConf.save(OmegaConf.create(_as_plain(cfg)), run_dir / "config.yaml")
-
     torch.manual_seed(rc.seed)
     device = torch.device(rc.device)
     n_agents = rc.scenario.n_uavs
@@ -287,6 +284,9 @@ def train(cfg: DictConfig | dict) -> TrainResult:
             buffer.load_state_dict(payload["buffer"])
         if exp.workers == 1:
             env.set_state(payload["env_state"])
+    # Only now, with the checkpoint (if any) known to fit, does the run folder change.
+    run_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(OmegaConf.create(_as_plain(cfg)), run_dir / "config.yaml")
 
     steps = exp.steps_per_batch if learner.off_policy else rc.algo.rollout_steps
     frames_per_batch = exp.num_envs * steps
@@ -324,6 +324,7 @@ def train(cfg: DictConfig | dict) -> TrainResult:
             state["buffer"] = buffer.state_dict()
         return atomic_save(state, ckpt_path)
 
+    t_last = time.perf_counter()  # end of the previous iteration: collection time is measured from here
     already_done = _done(exp, counters, counters["seconds"])  # resuming a finished run changes nothing
     try:
         for batch in ([] if already_done else collector):
@@ -360,8 +361,8 @@ def train(cfg: DictConfig | dict) -> TrainResult:
                 log["train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
                 log["train/success_rate"] = sum(s for _, s in recent) / len(recent)
             log["perf/updates_per_s"] = n_updates / update_seconds if update_seconds > 0 else 0.0
-            log["perf/frames_per_s"] = frames / max(t_collect_end - getattr(collector, "_t_last", start), 1e-9)
-            collector._t_last = time.perf_counter()
+            log["perf/frames_per_s"] = frames / max(t_collect_end - t_last, 1e-9)
+            t_last = time.perf_counter()
             if logger is not None:
                 for key, value in log.items():
                     logger.log_scalar(key, value, step=counters["frames"])

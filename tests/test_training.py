@@ -86,11 +86,13 @@ def test_fresh_run_never_overwrites_an_existing_checkpoint(tmp_path):
 def test_mismatched_checkpoint_is_refused(tmp_path):
     result = train(tiny(tmp_path))
     before = result.checkpoint.read_bytes()
+    config_before = (result.run_dir / "config.yaml").read_text()
     other = tiny(tmp_path, policy="policy3")  # critic on the observation, same folder
     other.resume = True
     with pytest.raises(CheckpointError, match="critic_input|policy"):
         train(other)
     assert result.checkpoint.read_bytes() == before
+    assert (result.run_dir / "config.yaml").read_text() == config_before
 
 
 def test_corrupted_checkpoint_is_refused(tmp_path):
