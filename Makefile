@@ -28,7 +28,7 @@ test-all: $(STAMP)
 # The main job on a small embedded default: train Policy3-G (the paper's method) briefly,
 # then evaluate it on the training scenario.
 demo: $(STAMP)
-	$(PYTHON) scripts/train.py experiment=demo
+	$(PYTHON) scripts/train.py experiment=demo resume=auto
 
 train: $(STAMP)
 	$(PYTHON) scripts/train.py $(ARGS)
