@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.installed
 # range admits it, so pip keeps it (and keeps a user's own CUDA build in their own env).
 TORCH   ?= torch==2.13.0
 
-.PHONY: install test test-all demo train train-all train-safe reproduce-table3 reproduce-table4 reproduce-table5 \
+.PHONY: install test test-all demo train train-all reproduce-table3 reproduce-table4 reproduce-table5 \
         figures benchmark tune-baselines clean
 
 $(STAMP): pyproject.toml
@@ -42,15 +42,6 @@ train-all: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast progress=false \
 		resume=auto seed=1,2 policy=policy3_g
 	$(PYTHON) scripts/export_checkpoints.py runs/fast
-
-# Our improvement on safe_success (same reward, sensors and instinct): Policy3-G, 3 seeds.
-train-safe: $(STAMP)
-	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast_safe progress=false \
-		resume=auto seed=0,1,2 policy=policy3_g
-	$(PYTHON) scripts/export_checkpoints.py runs/fast_safe --dest checkpoints/fast_safe
-
-clean:
-	rm -rf outputs multirun .pytest_cache
 
 # Paper reproduction from the shipped checkpoints (checkpoints/) and the two baselines.
 EPISODES ?= 500
