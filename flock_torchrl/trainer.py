@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import math
 import os
 import time
@@ -293,12 +294,12 @@ def train(cfg: DictConfig | dict) -> TrainResult:
     init_random = max(0, exp.init_random_frames - counters["frames"]) if learner.off_policy else 0
     collector_kwargs = dict(frames_per_batch=frames_per_batch, total_frames=-1, device=device,
                             init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
-                            track_traj_ids=False, auto_register_policy_transforms=False)
+                            auto_register_policy_transforms=False)
     if exp.workers > 1:
-        collector = MultiSyncCollector([lambda w=w: env_factory(w) for w in range(exp.workers)],
+        collector = MultiSyncCollector([functools.partial(env_factory, w) for w in range(exp.workers)],
                                        learner.collector_policy, **collector_kwargs)
     else:
-        collector = Collector(env, learner.collector_policy, **collector_kwargs)
+        collector = Collector(env, learner.collector_policy, track_traj_ids=False, **collector_kwargs)
     if payload is not None:
         torch.set_rng_state(payload["rng"]["torch"])
 

@@ -162,3 +162,11 @@ def test_wandb_logger_works_offline(tmp_path, monkeypatch):
                             overrides={"scenario.max_steps": 40, "experiment.max_frames": 48})
     train(cfg)
     assert list((tmp_path / "wb" / "wandb").glob("offline-run-*")), "no offline wandb run was written"
+
+
+def test_several_collector_processes(tmp_path):
+    """workers=2: TorchRL's MultiSyncCollector over two env processes, same learner."""
+    result = train(tiny(tmp_path, **{"experiment.workers": 2, "experiment.max_frames": 64}))
+    ckpt = load_checkpoint(result.checkpoint)
+    assert ckpt["counters"]["frames"] >= 64 and ckpt["counters"]["updates"] > 0
+    assert "env_state" not in ckpt  # several processes: a resume restarts their episodes
