@@ -325,6 +325,16 @@ def train(cfg: DictConfig | dict) -> TrainResult:
             state["buffer"] = buffer.state_dict()
         return atomic_save(state, ckpt_path)
 
+    def evaluate_now() -> dict[str, float]:
+        result = _evaluate_during_training(learner.actor, rc)
+        result["frames"] = counters["frames"]
+        evaluations.append(result)
+        if logger is not None:
+            for key, value in result.items():
+                if key != "frames":
+                    logger.log_scalar(f"eval/{key}", value, step=counters["frames"])
+        return result
+
     t_last = time.perf_counter()  # end of the previous iteration: collection time is measured from here
     already_done = _done(exp, counters, counters["seconds"])  # resuming a finished run changes nothing
     try:
@@ -371,13 +381,7 @@ def train(cfg: DictConfig | dict) -> TrainResult:
 
             if exp.eval_every_frames and counters["frames"] >= next_eval:
                 next_eval = _next_multiple(counters["frames"], exp.eval_every_frames)
-                result = _evaluate_during_training(learner.actor, rc)
-                result["frames"] = counters["frames"]
-                evaluations.append(result)
-                if logger is not None:
-                    for key, value in result.items():
-                        if key != "frames":
-                            logger.log_scalar(f"eval/{key}", value, step=counters["frames"])
+                result = evaluate_now()
                 progress.write(f"eval @ {counters['frames']} frames: success {result['success']:.3f} "
                                f"safe_success {result['safe_success']:.3f}")
             if exp.checkpoint_every_frames and counters["frames"] >= next_ckpt:
@@ -393,13 +397,7 @@ def train(cfg: DictConfig | dict) -> TrainResult:
         episode_log.close()
         progress.close()
     if exp.eval_episodes and (not evaluations or evaluations[-1]["frames"] != counters["frames"]):
-        final = _evaluate_during_training(learner.actor, rc)
-        final["frames"] = counters["frames"]
-        evaluations.append(final)
-        if logger is not None:
-            for key, value in final.items():
-                if key != "frames":
-                    logger.log_scalar(f"eval/{key}", value, step=counters["frames"])
+        evaluate_now()  # every run ends with an evaluation of what it ships
     path = save()
     if rc.logger.backend == "wandb" and logger is not None:
         logger.experiment.finish()
