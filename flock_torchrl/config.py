@@ -231,7 +231,3 @@ def load_scenario(scenario: str | Mapping[str, Any] | DictConfig | ScenarioConfi
         raise ConfigError(f"invalid scenario config: {exc}") from exc
     cfg: ScenarioConfig = OmegaConf.to_object(structured)  # type: ignore[assignment]
     return validate_scenario(cfg)
-
-
-def scenario_to_dict(cfg: ScenarioConfig) -> dict[str, Any]:
-    return dataclasses.asdict(cfg)

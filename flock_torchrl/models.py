@@ -75,11 +75,4 @@ def make_value(env, critic_input: str, *, hidden: int = 128, depth: int = 2) -> 
     return ValueOperator(module=net, in_keys=[key], out_keys=[("agents", "state_value")])
 
 
-def actor_for_agents(state_dict: dict, env, *, stochastic: bool, hidden: int, depth: int) -> TensorDictModule:
-    """Rebuild the shared actor for ``env``'s N and load ``state_dict`` (N-independent)."""
-    actor = make_actor(env, stochastic=stochastic, hidden=hidden, depth=depth)
-    actor.load_state_dict(state_dict)
-    return actor
-
-
-__all__ = ["make_actor", "make_qvalue", "make_value", "actor_for_agents"]
+__all__ = ["make_actor", "make_qvalue", "make_value"]
