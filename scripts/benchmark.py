@@ -1,15 +1,13 @@
-"""Print throughput figures with ratios against baselines run in the same process.
+"""Throughput figures, each against a baseline run in the same process (a Hydra app on
+conf/benchmark.yaml; logic: flock_torchrl.report.benchmark).
 
-    python scripts/benchmark.py            # about a minute on a 2-core CPU
-    python scripts/benchmark.py --quick
+    python scripts/benchmark.py
+    python scripts/benchmark.py quick=true
 """
 
-import argparse
+import sys
 
-from flock_torchrl.benchmark import format_rows, run_all
+from flock_torchrl.cli import benchmark_main
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="fewer repetitions")
-    args = parser.parse_args()
-    print(format_rows(run_all(quick=args.quick)))
+    sys.exit(benchmark_main())

@@ -1,7 +1,7 @@
-"""Shared fixtures of the env test suite.
+"""Shared fixtures of the test suite.
 
-Every expected value in these tests is computed by hand from SPEC.md (the arithmetic sits in a
-comment next to it), never by calling the function under test a second time.
+Every expected value in these tests is computed by hand from docs/specification.md (the
+arithmetic sits in a comment next to it), never by calling the function under test a second time.
 """
 
 from __future__ import annotations
@@ -15,34 +15,25 @@ from flock_torchrl import FlockingEnv
 torch.set_num_threads(1)
 
 
-def _place(env: FlockingEnv, position, heading, goal, velocity=None):
-    """Put ``env`` in an exact state (the env's state API) and re-sense it.
-
-    Args:
-        position: ``[B, N, 2]`` (nested lists); heading ``[B, N]``; goal ``[B, 2]``;
-        velocity: ``[B, N, 2]`` (zeros when omitted).
-    """
-    env.position = torch.tensor(position, dtype=torch.float32)
-    env.heading = torch.tensor(heading, dtype=torch.float32)
-    env.goal = torch.tensor(goal, dtype=torch.float32)
-    env.velocity = (torch.zeros_like(env.position) if velocity is None
-                    else torch.tensor(velocity, dtype=torch.float32))
-    env.sensed = env._sense()
+def _place(env: FlockingEnv, position, heading, goal, velocity=None) -> FlockingEnv:
+    env.place(position, heading, goal, velocity)
     return env
 
 
 def _step_with(env: FlockingEnv, action):
-    """One ``env.step`` with the given ``("agents", "action")`` ``[B, N, 2]``; returns ``td["next"]``."""
-    td = env._output()
+    """One ``env.step`` from the current state with the given ``("agents", "action")`` ``[B, N, 2]``;
+    returns ``td["next"]``."""
+    td = env.current()
     td.set(("agents", "action"), torch.tensor(action, dtype=torch.float32))
     return env.step(td)["next"]
 
 
 @pytest.fixture
 def make_env():
-    """Factory: ``make_env(scenario, num_envs=1, seed=0, **overrides)``, reset once."""
-    def _make(scenario="train", num_envs=1, seed=0, **overrides):
-        env = FlockingEnv(scenario, num_envs=num_envs, seed=seed, **overrides)
+    """Factory: ``make_env(scenario, num_envs=1, seed=0, **kwargs)``, reset once: reading
+    ``literal`` and every extra key unless given."""
+    def _make(scenario="train", num_envs=1, seed=0, reading="literal", extras="all", **kwargs):
+        env = FlockingEnv(scenario, num_envs=num_envs, seed=seed, reading=reading, extras=extras, **kwargs)
         env.reset()
         return env
 
@@ -51,11 +42,11 @@ def make_env():
 
 @pytest.fixture
 def place():
-    """``place(env, position, heading, goal, velocity=None)``: exact state, re-sensed."""
+    """``place(env, position, heading, goal, velocity=None)``: an exact state, sensed; returns ``env``."""
     return _place
 
 
 @pytest.fixture
 def step_with():
-    """``step_with(env, action)``: one step with a given action, returns ``td["next"]``."""
+    """``step_with(env, action)``: one step from the current state, returns ``td["next"]``."""
     return _step_with

@@ -7,22 +7,31 @@ import math
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 from tensordict.nn import TensorDictModuleBase
 
-from flock_torchrl import FlockingEnv
-from flock_torchrl.baselines import (BASELINES, OlfatiSaberParams, VasarhelyiParams, baseline_env,
-                                     controller_params, evaluate_policy, load_baseline_config, make_baseline,
-                                     summarize)
-from flock_torchrl.baselines import olfati_saber as os_
-from flock_torchrl.baselines import vasarhelyi as va
-from flock_torchrl.baselines.sensing import nearest_hits, neighbour_view
-from flock_torchrl.config import ConfigError
-from flock_torchrl.geometry import Obstacles
-from flock_torchrl.schema import load_group
-from flock_torchrl.sensors import laser_scan
+from flock_torchrl import FlockingEnv, make_policy
+from flock_torchrl.config import ConfigError, compose_world
+from flock_torchrl.policies.baselines import OlfatiSaberParams, controller_params, make_baseline
+from flock_torchrl.policies.baselines import olfati_saber as os_
+from flock_torchrl.policies.baselines import vasarhelyi as va
+from flock_torchrl.policies.baselines.sensing import nearest_hits, neighbour_view
+from flock_torchrl.policies.registry import policy_config
+from flock_torchrl.run.evaluation import evaluate
+from flock_torchrl.world.geometry import Obstacles
+from flock_torchrl.world.sensors import laser_scan
 
 SCENARIOS = ("train", "s1", "s2", "s3", "s4", "s5")
+BASELINES = ("policy_ma", "policy_op")
+
+
+def yaml_params(name):
+    """The controller's parameters as conf/policy/<name>.yaml composes them."""
+    return controller_params(policy_config(name, "literal")[0])
+
+
+def baseline_env(name, scenario, num_envs, seed, **kwargs):
+    return FlockingEnv(scenario, num_envs=num_envs, seed=seed, reading="literal", policy_id=name,
+                       extras=("physics", "laser"), **kwargs)
 
 
 def t(*values):
@@ -57,7 +66,7 @@ def test_phi_alpha_sign_and_zero_at_desired_distance():
 
 
 def test_two_alpha_agents_at_desired_distance_feel_no_force():
-    p = OlfatiSaberParams()
+    p = yaml_params("policy_ma")
     kw = dict(eps=p.eps, r=p.r, d=p.d, h=p.h_alpha, a=p.a, b=p.b)
     for gap, sign in ((p.d, 0), (1.0, -1), (0.5 * (p.d + p.r), 1)):
         offset = torch.zeros(1, 2, 2, 2)
@@ -220,7 +229,7 @@ def test_self_propulsion_points_at_the_goal():
 def test_neighbours_outside_the_field_of_view_are_ignored():
     # UAV 0 at the origin heading +x; UAV 1 one metre behind it: 0 cannot see 1, 1 sees 0
     position = torch.tensor([[[0.0, 0.0], [-1.0, 0.0]]])
-    view = neighbour_view(position, torch.zeros(1, 2, 2), torch.zeros(1, 2), 5.0, math.pi / 2)
+    view = neighbour_view(position, torch.zeros(1, 2, 2), torch.zeros(1, 2), 5.0, math.pi / 4)
     assert view.visible.tolist() == [[[False, False], [True, False]]]
     rep = va.repulsion(view.offset, view.distance, view.visible, p_rep=0.8, r0_rep=3.0)
     assert torch.equal(rep[0, 0], torch.zeros(2)) and rep[0, 1, 0] < 0
@@ -231,41 +240,42 @@ def test_neighbours_outside_the_field_of_view_are_ignored():
 
 @pytest.mark.parametrize("name", BASELINES)
 def test_yaml_documents_every_parameter(name):
-    cfg = load_baseline_config(name)
-    params = controller_params(cfg)
-    assert set(cfg.params) == {f.name for f in dataclasses.fields(params)}
-    assert cfg.kind == "rule" and cfg.env["action_mode"] == "velocity" and cfg.env["instinct"] is False
-    assert cfg.env["fov"] == pytest.approx(math.pi / 2)
-    assert dataclasses.asdict(params) == pytest.approx(dataclasses.asdict(type(params)()))  # defaults = YAML
+    policy, scenario = policy_config(name, "literal")
+    params = controller_params(policy)
+    assert set(policy.params) == {f.name for f in dataclasses.fields(params)}
+    assert policy.kind == "rule" and scenario["action_mode"] == "velocity" and scenario["instinct"] is False
+    assert scenario["fov"] == pytest.approx(math.pi / 2)
 
 
-def test_make_baseline_accepts_a_config_node():
-    node = OmegaConf.to_container(load_group("policy", "policy_op"), resolve=True)
-    node["params"]["v_flock"] = 2.0
-    policy = make_baseline(node, "s1")
+def test_command_line_params_reach_the_controller():
+    cfg = compose_world("s1", "literal", "policy_op", ["policy.params.v_flock=2.0"])
+    from flock_torchrl.config import PolicyConfig, to_object
+
+    env = baseline_env("policy_op", "s1", 1, 0)
+    policy = make_baseline(to_object(cfg.policy, PolicyConfig, "policy"), env.cfg)
     assert isinstance(policy, TensorDictModuleBase) and policy.params.v_flock == 2.0
-    assert policy.env_cfg.action_mode == "velocity" and policy.env_cfg.fov == pytest.approx(math.pi / 2)
+    assert policy.env_cfg.action_mode == "velocity" and policy.env_cfg.half_fov == pytest.approx(math.pi / 4)
     assert ("agents", "action") in policy.out_keys and ("agents", "scan_obstacle") in policy.in_keys
 
 
 def test_bad_params_fail_naming_the_field():
-    node = load_group("policy", "policy_ma")
-    node.params.c1_gama = 1.0
+    policy = policy_config("policy_ma", "literal")[0]
     with pytest.raises(ConfigError, match="c1_gama"):
-        make_baseline(node, "train")
-    node = load_group("policy", "policy_op")
-    node.params.v_flock = -1.0
+        controller_params(dataclasses.replace(policy, params={**policy.params, "c1_gama": 1.0}))
+    with pytest.raises(ConfigError, match="c1_gamma"):  # a missing one too: every value lives in the YAML
+        controller_params(dataclasses.replace(policy, params={k: v for k, v in policy.params.items()
+                                                              if k != "c1_gamma"}))
+    op = policy_config("policy_op", "literal")[0]
     with pytest.raises(ConfigError, match="v_flock"):
-        make_baseline(node, "train")
-    with pytest.raises(ConfigError, match="'a'"):
-        OlfatiSaberParams(a=6.0, b=5.0)
+        controller_params(dataclasses.replace(op, params={**op.params, "v_flock": -1.0}))
+    with pytest.raises(ConfigError, match="'a'|params.a"):
+        OlfatiSaberParams(**{**policy.params, "a": 6.0, "b": 5.0})
     with pytest.raises(ConfigError, match="h_beta"):
-        load_baseline_config(OmegaConf.merge(load_group("policy", "policy_ma"), {"params": {"h_beta": 1.0}}))
+        controller_params(dataclasses.replace(policy, params={**policy.params, "h_beta": 1.0}))
     with pytest.raises(ConfigError, match="kind"):
-        make_baseline("policy3_g", "train")
+        make_baseline(policy_config("policy3_g")[0], FlockingEnv("s1", num_envs=1).cfg)
     with pytest.raises(ConfigError, match="action_mode"):
-        make_baseline("policy_op", FlockingEnv("s1", num_envs=1).cfg)
-    assert VasarhelyiParams().v_max == 3.0
+        make_baseline(op, FlockingEnv("s1", num_envs=1).cfg)
 
 
 # ----------------------------------------------------------------------------- in the env
@@ -275,7 +285,7 @@ def test_bad_params_fail_naming_the_field():
 def test_rollout_in_every_scenario_has_no_nan(scenario):
     for name in BASELINES:
         env = baseline_env(name, scenario, num_envs=3, seed=7)
-        td = env.rollout(40, policy=make_baseline(name, env), break_when_any_done=False)
+        td = env.rollout(40, policy=make_policy(name, env), break_when_any_done=False)
         action = td["agents", "action"]
         assert action.shape == (3, 40, env.n_agents, 2)
         assert torch.isfinite(action).all() and torch.isfinite(td["next", "agents", "position"]).all()
@@ -284,17 +294,16 @@ def test_rollout_in_every_scenario_has_no_nan(scenario):
 
 @pytest.mark.parametrize("name", BASELINES)
 def test_every_s1_episode_reaches_the_goal(name):
-    env = baseline_env(name, "s1", num_envs=16, seed=11)
-    metrics = evaluate_policy(env, make_baseline(name, env))
+    result = evaluate(name, "s1", "literal", n_episodes=16, seed=11)
+    metrics = result.episodes
     assert metrics["success"].all()
-    assert (metrics["steps"].float() * env.cfg.dt - metrics["t_goal"]).abs().max() < 1e-3  # first done recorded
-    summary = summarize(metrics)
-    assert summary["success"] == (1.0, 0.0) and 2.0 < summary["speed"][0] <= 3.0
+    assert (metrics["steps"].float() * 0.2 - metrics["t_goal"]).abs().max() < 1e-3  # first done recorded
+    assert result.rate("success").rate == 1.0 and 2.0 < result.cell("speed").mean <= 3.0
 
 
 def test_policy_runs_on_the_inputs_device():
     device = "cuda" if torch.cuda.is_available() else "cpu"
     env = baseline_env("policy_ma", "s5", num_envs=2, seed=0, device=device)
     for name in BASELINES:
-        td = make_baseline(name, env)(env.reset())
+        td = make_policy(name, env)(env.reset())
         assert td["agents", "action"].device.type == torch.device(device).type

@@ -1,4 +1,4 @@
-"""config.py: every YAML composes against ScenarioConfig; bad values fail at construction, naming the field."""
+"""Scenario configs: every YAML composes against ScenarioConfig; bad values fail at construction, naming the field."""
 
 import dataclasses
 import math
@@ -7,20 +7,28 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from flock_torchrl import ConfigError, FlockingEnv, ScenarioConfig, available_scenarios, load_scenario
-from flock_torchrl.config import CONF_DIR, SCENARIO_FIELDS
+from flock_torchrl import ConfigError, FlockingEnv, ScenarioConfig
+from flock_torchrl.config import CONF_DIR, SCENARIO_FIELDS, available, scenario_config
+
+
+def load_scenario(scenario="train", **fields):
+    return scenario_config(scenario, reading=None if not isinstance(scenario, str) else "literal", **fields)
 
 SCENARIOS = ["train", "s1", "s2", "s3", "s4", "s5", "tau_v"]
 
 
 def test_all_scenarios_are_available():
-    assert set(SCENARIOS) <= set(available_scenarios())
+    assert set(SCENARIOS) <= set(available("scenario"))
 
 
-def test_train_yaml_has_every_field_and_no_other():
-    # The training YAML spells out the whole world: no field of the dataclass is missing, none is extra.
-    keys = set(OmegaConf.load(CONF_DIR / "scenario" / "train.yaml").keys())
-    assert keys == SCENARIO_FIELDS
+@pytest.mark.parametrize("reading", ["literal", "paper_fit"])
+def test_train_yaml_and_a_reading_set_every_field_once(reading):
+    # The training YAML spells out the world, a reading its own fields: together every field of
+    # the dataclass, none twice, none extra.
+    world = set(OmegaConf.load(CONF_DIR / "scenario" / "train.yaml").keys()) - {"defaults"}
+    own = set(OmegaConf.load(CONF_DIR / "reading" / f"{reading}.yaml").keys())
+    assert not world & own
+    assert world | own == SCENARIO_FIELDS
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
@@ -42,8 +50,7 @@ def test_training_defaults_match_spec():
     assert cfg.circles == [[40.0, 40.0, 6.0]]
     assert cfg.rectangles == [[10.0, 40.0, 6.0, 16.0], [70.0, 40.0, 6.0, 16.0]]
     assert (cfg.d_env, cfg.spawn_radius, cfg.uav_collision_terminates) == (40.0, 3.0, False)
-    # The YAML and the dataclass defaults agree field by field (no drift).
-    assert dataclasses.asdict(cfg) == dataclasses.asdict(ScenarioConfig())
+    assert (cfg.spawn_separation, cfg.spawn_clearance, cfg.reading, cfg.fov_convention) == (1.0, 1.0, "literal", "total")
 
 
 def test_scenario_table():
@@ -66,17 +73,20 @@ def test_scenario_table():
 def test_overrides_and_other_sources():
     cfg = load_scenario("train", fov=2 * math.pi, instinct=True, n_uavs=9)
     assert (cfg.fov, cfg.instinct, cfg.n_uavs) == (2 * math.pi, True, 9)
-    assert load_scenario({"n_uavs": 3}).n_uavs == 3
-    assert load_scenario(OmegaConf.create({"name": "x", "dt": 0.1})).dt == 0.1
-    assert load_scenario(ScenarioConfig(n_uavs=4)).n_uavs == 4
+    full = dataclasses.asdict(load_scenario("train"))
+    assert load_scenario({**full, "n_uavs": 3}).n_uavs == 3
+    assert load_scenario(OmegaConf.create({**full, "dt": 0.1})).dt == 0.1
+    assert load_scenario(ScenarioConfig(**{**full, "n_uavs": 4})).n_uavs == 4
     assert load_scenario("S2").n_uavs == 9  # case-insensitive names
+    with pytest.raises(ConfigError, match="missing"):  # a mapping must be complete
+        load_scenario({"n_uavs": 3})
 
 
 # ---------------------------------------------------------------- bad inputs
 BAD = [
     (dict(n_uavs=0), "n_uavs"),
     (dict(n_uavs=-3), "n_uavs"),
-    (dict(n_uavs=60), "n_uavs"),                        # infeasible spawn density: refused, not hung
+    (dict(n_uavs=60, spawn_reference_uavs=60), "n_uavs"),  # 60 UAVs 1 m apart in a 3 m disc: refused, not hung
     (dict(fov=0.0), "fov"),
     (dict(fov=-1.0), "fov"),
     (dict(fov=2 * math.pi + 0.01), "fov"),
@@ -105,8 +115,9 @@ BAD = [
 
 @pytest.mark.parametrize("overrides, field", BAD, ids=[f"{f}-{i}" for i, (_, f) in enumerate(BAD)])
 def test_bad_values_raise_naming_the_field(overrides, field):
-    with pytest.raises(ConfigError, match=field):
-        load_scenario("train", **overrides)
+    if field != "n_uavs":  # spawn feasibility is the world's check, made by every env
+        with pytest.raises(ConfigError, match=field):
+            load_scenario("train", **overrides)
     # ... and FlockingEnv refuses them at construction (ConfigError is a ValueError).
     with pytest.raises(ValueError, match=field):
         FlockingEnv("train", **overrides)
@@ -118,12 +129,12 @@ def test_circles_that_just_touch_are_allowed():
 
 
 def test_unknown_scenario_and_unknown_field():
-    with pytest.raises(ConfigError, match="unknown scenario 'nowhere'"):
+    with pytest.raises(ConfigError, match="unknown choice 'nowhere'"):
         load_scenario("nowhere")
     with pytest.raises(ConfigError, match="wind_speed"):
         load_scenario("train", wind_speed=3.0)
     with pytest.raises(ConfigError, match="wind_speed"):
-        load_scenario({"wind_speed": 3.0})
+        load_scenario({**dataclasses.asdict(load_scenario("train")), "wind_speed": 3.0})
     with pytest.raises(ValueError, match="nowhere"):
         FlockingEnv("nowhere")
     with pytest.raises(ValueError, match="wind_speed"):

@@ -1,44 +1,39 @@
-"""Every YAML composes against its dataclass; bad names and values fail at config time."""
+"""One composition: every YAML against its schema, what --cfg job prints is what runs,
+bad names and values fail at config time naming the key."""
+
+import dataclasses
+import math
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from flock_torchrl.config import CONF_DIR, ConfigError, load_scenario
-from flock_torchrl.schema import (ALGO_SCHEMAS, available, load_group, validate_algo, validate_experiment,
-                                  validate_logger, validate_policy)
-from flock_torchrl.trainer import make_train_config, resolve_config
+from flock_torchrl import FlockingEnv
+from flock_torchrl.config import (ALGO_SCHEMAS, POLICY_SCENARIO_FIELDS, ConfigError, available, check_algo,
+                                  check_experiment, compose, scenario_config, to_object, ExperimentConfig)
+from flock_torchrl.run.evaluation import EVAL_SEED
+from flock_torchrl.run.trainer import check_train_config, make_train_config
 
 ALL_POLICIES = ["policy1", "policy1_g", "policy2", "policy2_g", "policy3", "policy3_g", "policy4_g", "policy5_g",
                 "policyd_g", "policyp_g", "policy_ma", "policy_op"]
 LEARNED = ALL_POLICIES[:10]
 
 
-def compose_train(*overrides):
-    """Compose conf/train.yaml as scripts/train.py would, minus Hydra's runtime resolvers."""
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(config_name="train", overrides=list(overrides), return_hydra_config=True)
-    OmegaConf.set_struct(cfg, False)
-    cfg.cli_overrides = list(cfg.hydra.overrides.task)
-    cfg.policy_id = cfg.hydra.runtime.choices.policy
-    del cfg["hydra"]
-    return cfg
+def test_every_policy_has_a_yaml_whose_id_is_its_name():
+    assert set(ALL_POLICIES) <= set(available("policy"))
+    for policy in ALL_POLICIES:
+        cfg = compose("world", [f"policy={policy}"])
+        assert cfg.policy.id == policy
 
 
-@pytest.mark.parametrize("policy", ALL_POLICIES)
-def test_every_policy_composes(policy):
-    if policy not in available("policy"):
-        pytest.fail(f"conf/policy/{policy}.yaml is missing")
-    cfg = compose_train(f"policy={policy}", "run_dir=/tmp/unused")
-    validated = validate_policy(cfg.policy)
-    load_scenario(OmegaConf.to_container(cfg.scenario, resolve=True), **validated.env)
-    if validated.kind == "learned":
-        assert validate_algo(cfg.algo).name in ALGO_SCHEMAS
-        resolve_config(cfg)
+@pytest.mark.parametrize("policy", LEARNED)
+@pytest.mark.parametrize("experiment", ["paper", "fast", "fast_safe", "demo", "tiny"])
+def test_every_learned_policy_and_experiment_compose_and_check(policy, experiment):
+    rc = check_train_config(make_train_config(policy, experiment))
+    assert rc.policy.id == policy and rc.experiment.name == experiment
 
 
-def test_policy_table_matches_spec():
-    """SPEC section 7, column by column."""
+def test_policy_table_matches_the_specification():
+    """docs/specification.md section 7, column by column."""
     expected = {  # fov/pi, instinct, tangential, critic, algo, reward source
         "policy1": (2.0, False, True, "observation", "sac", "scan"),
         "policy1_g": (2.0, False, True, "state", "sac", "scan"),
@@ -51,76 +46,149 @@ def test_policy_table_matches_spec():
         "policyd_g": (0.5, True, True, "state", "ddpg", "scan"),
         "policyp_g": (0.5, True, True, "state", "ppo", "scan"),
     }
-    import math
-
     for policy, (fov, instinct, tangential, critic, algo, source) in expected.items():
-        cfg = compose_train(f"policy={policy}", "run_dir=/tmp/unused")
-        env = cfg.policy.env
-        assert math.isclose(env.fov, fov * math.pi), policy
-        assert env.instinct is instinct and env.tangential is tangential, policy
-        assert env.collision_reward_source == source, policy
-        assert cfg.policy.critic_input == critic and cfg.algo.name == algo, policy
+        rc = check_train_config(make_train_config(policy, "fast"))
+        s = rc.scenario
+        assert math.isclose(s.fov, fov * math.pi), policy
+        assert s.instinct is instinct and s.tangential is tangential, policy
+        assert s.collision_reward_source == source, policy
+        assert rc.policy.critic_input == critic and rc.algo.name == algo, policy
+    for policy in ("policy_ma", "policy_op"):
+        cfg = compose("world", [f"policy={policy}"])
+        assert cfg.policy.kind == "rule" and cfg.scenario.action_mode == "velocity" and not cfg.scenario.instinct
+        assert math.isclose(cfg.scenario.fov, 0.5 * math.pi)
 
 
-@pytest.mark.parametrize("group", ["algo", "experiment", "logger", "scenario"])
-def test_every_group_yaml_matches_its_dataclass(group):
-    validators = {"algo": validate_algo, "experiment": validate_experiment, "logger": validate_logger,
-                  "scenario": lambda node: load_scenario(OmegaConf.to_container(node, resolve=True))}
+def test_policy_yamls_set_only_policy_fields():
+    # A checkpoint records POLICY_SCENARIO_FIELDS: a policy YAML may set nothing else of the world.
+    base = compose("world", []).scenario
+    for policy in ALL_POLICIES:
+        composed = compose("world", [f"policy={policy}"]).scenario
+        changed = {k for k in base if base[k] != composed[k]}
+        assert changed <= set(POLICY_SCENARIO_FIELDS), (policy, changed)
+
+
+@pytest.mark.parametrize("group", ["algo", "experiment", "logger", "scenario", "reading", "tuning"])
+def test_every_group_yaml_composes(group):
     names = available(group)
     assert names
     for name in names:
-        node = load_group(group, name) if group != "scenario" else OmegaConf.create(
-            OmegaConf.to_container(OmegaConf.structured(load_scenario(name)), resolve=True))
-        validators[group](node)
+        if group == "tuning":
+            algo, _, experiment = name.partition("_")
+            policy = {"sac": "policy3_g", "ddpg": "policyd_g", "ppo": "policyp_g"}[algo]
+            check_algo(make_train_config(policy, experiment).algo)
+        elif group in ("scenario", "reading"):
+            scenario_config(name if group == "scenario" else "train", reading=name if group == "reading" else None)
+        else:
+            cfg = compose("train", [f"{group}={name}"])
+            if group == "algo":
+                check_algo(cfg.algo)
+            elif group == "experiment":
+                check_experiment(to_object(cfg.experiment, ExperimentConfig, "experiment"))
 
 
-def test_experiment_algo_overrides_are_valid():
-    for name in available("experiment"):
-        exp = validate_experiment(load_group("experiment", name))
-        for algo, patch in exp.algo_overrides.items():
-            validate_algo(OmegaConf.merge(load_group("algo", algo), patch))
+def test_experiments_tune_the_learner_through_composition():
+    fast = check_train_config(make_train_config("policy3_g", "fast"))
+    paper = check_train_config(make_train_config("policy3_g", "paper"))
+    assert (paper.algo.batch_size, paper.algo.lr_actor) == (128, 5e-5)  # Table I
+    assert (fast.algo.batch_size, fast.algo.lr_actor) == (1280, 3e-4)
+    # fast_safe and demo are deltas of fast, and learn like it.
+    safe = check_train_config(make_train_config("policy3_g", "fast_safe"))
+    assert dataclasses.asdict(safe.algo) == dataclasses.asdict(fast.algo)
+    assert safe.train_scenario.uav_collision_terminates and not safe.scenario.uav_collision_terminates
+    assert safe.experiment.num_envs == fast.experiment.num_envs
+    # The user's override wins over the experiment's tuning.
+    assert check_train_config(make_train_config("policy3_g", "fast", ["algo.lr_actor=0.123"])).algo.lr_actor == 0.123
 
 
-@pytest.mark.parametrize("override, field", [
+def test_what_is_shown_is_what_runs():
+    """The composed config (what --cfg job prints and config.yaml saves) holds the values the run
+    uses: the experiment's batch size, the policy's instinct, the tiny network."""
+    cfg = make_train_config("policy3_g", "fast")
+    assert cfg.algo.batch_size == 1280 and cfg.scenario.instinct is True
+    tiny = make_train_config("policy3_g", "tiny")
+    assert tiny.algo.hidden == 32
+    env = FlockingEnv.from_config(tiny.scenario)
+    assert env.cfg.instinct is True and env.cfg.fov == pytest.approx(0.5 * math.pi)
+
+
+def test_evaluation_seed_is_one_number():
+    assert compose("train").eval_seed == EVAL_SEED
+    assert compose("evaluate").seed == EVAL_SEED
+    assert compose("reproduce").seed == EVAL_SEED
+
+
+@pytest.mark.parametrize("override, key", [
     ("policy=nope", "policy"),
     ("logger=nope", "logger"),
     ("experiment=nope", "experiment"),
+    ("reading=nope", "reading"),
+    ("scenario.n_uavs=abc", "scenario.n_uavs"),
+    ("algo.lr_critc=1", "algo.lr_critc"),
 ])
-def test_unknown_group_choice_is_refused_by_hydra(override, field):
-    with pytest.raises(Exception, match=field):
-        compose_train(override)
+def test_unknown_names_and_wrong_types_fail_at_composition(override, key):
+    with pytest.raises(ConfigError) as info:
+        compose("train", [override])
+    assert info.value.key == key
 
 
-@pytest.mark.parametrize("key, value, field", [
-    ("algo.gamma", 1.5, "gamma"),
-    ("algo.batch_size", 0, "batch_size"),
-    ("experiment.num_envs", 0, "num_envs"),
-    ("logger.backend", "nope", "backend"),
-    ("policy.critic_input", "nope", "critic_input"),
-    ("scenario.fov", 7.0, "fov"),
-    ("scenario.n_uavs", 0, "n_uavs"),
+@pytest.mark.parametrize("override, key", [
+    ("algo.gamma=1.5", "algo.gamma"),
+    ("algo.batch_size=0", "algo.batch_size"),
+    ("algo.lr_actor=-1", "algo.lr_actor"),
+    ("experiment.num_envs=0", "experiment.num_envs"),
+    ("logger.backend=nope", "logger.backend"),
+    ("policy.critic_input=nope", "policy.critic_input"),
+    ("scenario.fov=7.0", "scenario.fov"),
+    ("scenario.n_uavs=0", "scenario.n_uavs"),
+    ("seed=-1", "seed"),
+    ("device=gpu0", "device"),
+    ("+algo.lr_critc=1", "algo.lr_critc"),
 ])
-def test_bad_values_name_the_field(key, value, field):
-    cfg = make_train_config("policy3_g", "tiny", run_dir="/tmp/unused", overrides={key: value})
-    with pytest.raises(ConfigError, match=field):
-        resolve_config(cfg)
+def test_bad_values_name_the_key(override, key):
+    with pytest.raises(ConfigError) as info:
+        check_train_config(make_train_config("policy3_g", "tiny", [override]))
+    assert info.value.key == key
 
 
-def test_user_algo_override_beats_the_experiment():
-    cfg = make_train_config("policy3_g", "tiny", run_dir="/tmp/unused", overrides={"algo.batch_size": 77})
-    assert resolve_config(cfg).algo.batch_size == 77  # tiny's algo_overrides say 40
-    composed = compose_train("experiment=fast", "algo.lr_actor=0.123", "run_dir=/tmp/unused")
-    assert resolve_config(composed).algo.lr_actor == 0.123  # fast's algo_overrides say 3e-4
+def test_cuda_on_a_machine_without_it_is_a_config_error():
+    import torch
 
-
-def test_unknown_key_is_refused():
-    cfg = make_train_config("policy3_g", "tiny", run_dir="/tmp/unused")
-    OmegaConf.update(cfg, "algo.lr_critc", 1e-3, force_add=True)
-    with pytest.raises(ConfigError, match="lr_critc"):
-        resolve_config(cfg)
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(ConfigError, match="no CUDA device"):
+        check_train_config(make_train_config("policy3_g", "tiny", ["device=cuda"]))
 
 
 def test_rule_based_policy_is_not_trainable():
-    cfg = compose_train("policy=policy_ma", "run_dir=/tmp/unused")
+    with pytest.raises(ConfigError, match="rule-based") as info:
+        make_train_config("policy_ma", "tiny")
+    assert info.value.key == "policy"
+    cfg = OmegaConf.create(OmegaConf.to_container(make_train_config("policy3_g", "tiny")))
+    cfg.policy = OmegaConf.to_container(compose("world", ["policy=policy_ma"]).policy)
     with pytest.raises(ConfigError, match="rule-based"):
-        resolve_config(cfg)
+        check_train_config(cfg)
+
+
+def test_readings_set_the_field_of_view_convention_and_the_spawn():
+    literal = scenario_config("train", reading="literal", policy="policy3_g")
+    fit = scenario_config("train", reading="paper_fit", policy="policy3_g")
+    assert (literal.half_fov, fit.half_fov) == (pytest.approx(math.pi / 4), pytest.approx(math.pi / 2))
+    assert (literal.spawn_separation, fit.spawn_separation) == (1.0, 2.0)  # paper_fit: d_safe
+    # Spawn radius: literal 3 m up to N = 9, then 3 sqrt(N / 9); paper_fit 3 sqrt(N / 5).
+    for n, lit, pf in [(5, 3.0, 3.0), (9, 3.0, 3 * math.sqrt(9 / 5)), (20, 3 * math.sqrt(20 / 9), 6.0),
+                       (3, 3.0, 3 * math.sqrt(3 / 5))]:
+        assert scenario_config("train", reading="literal", n_uavs=n).swarm_spawn_radius == pytest.approx(lit)
+        assert scenario_config("train", reading="paper_fit", n_uavs=n).swarm_spawn_radius == pytest.approx(pf)
+    # Full field of view stays unlimited under both.
+    assert scenario_config("train", reading="paper_fit", policy="policy1").half_fov >= math.pi
+
+
+def test_reading_is_one_choice_in_every_app():
+    for app in ("train", "evaluate", "reproduce", "figures", "tune_baselines", "ship"):
+        assert compose(app, ["reading=paper_fit"]).scenario.reading == "paper_fit", app
+    assert compose("world").scenario.reading in ("literal", "paper_fit")
+
+
+def test_algo_schemas_cover_every_algo_yaml():
+    assert set(available("algo")) == set(ALGO_SCHEMAS)

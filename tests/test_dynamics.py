@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.dynamics import (
+from flock_torchrl.world.dynamics import (
     action_to_command, clip_command, first_order_step, reflect_in_box, update_heading,
 )
 

@@ -8,7 +8,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from flock_torchrl import FlockingEnv
-from flock_torchrl.geometry import distance_to_obstacles, Obstacles
+from flock_torchrl.world.geometry import distance_to_obstacles, Obstacles
 
 PI = math.pi
 SCENARIOS = ["train", "s1", "s2", "s3", "s4", "s5", "tau_v"]
@@ -25,7 +25,7 @@ def zero_policy(td):
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_check_env_specs(scenario, num_envs):
     torch.manual_seed(0)
-    check_env_specs(FlockingEnv(scenario, num_envs=num_envs, seed=0))
+    check_env_specs(FlockingEnv(scenario, num_envs=num_envs, seed=0, extras="all"))
 
 
 @pytest.mark.parametrize("overrides", [dict(instinct=True), dict(instinct=True, noise=True, tangential=False),
@@ -33,14 +33,14 @@ def test_check_env_specs(scenario, num_envs):
                                        dict(collision_reward_source="min_uav_scan")])
 def test_check_env_specs_policy_variants(overrides):
     torch.manual_seed(0)
-    check_env_specs(FlockingEnv("train", num_envs=2, seed=0, **overrides))
+    check_env_specs(FlockingEnv("train", num_envs=2, seed=0, extras="all", **overrides))
 
 
 @pytest.mark.parametrize("scenario, n", [("train", 5), ("s2", 9), ("s5", 5)])
 def test_rollout_shapes_and_keys(scenario, n):
     b, t = 2, 4
     torch.manual_seed(0)
-    env = FlockingEnv(scenario, num_envs=b, seed=0)
+    env = FlockingEnv(scenario, num_envs=b, seed=0, extras="all")
     td = env.rollout(t)
     assert td.batch_size == (b, t)
     assert td["agents", "observation"].shape == (b, t, n, 17)
@@ -72,38 +72,38 @@ def test_spawn_follows_eq30(make_env):
     env = make_env("train", num_envs=64, seed=1)
     centre = torch.tensor([40.0, 40.0])
     # Goal at chi + pi: goal - (40, 40) = -(swarm centre - (40, 40)), both d_env = 40 from the middle.
-    goal_dir = env.goal - centre
+    goal_dir = env.world["goal"] - centre
     assert torch.allclose(torch.linalg.vector_norm(goal_dir, dim=-1), torch.full((64,), 40.0), atol=1e-4)
     swarm = centre - goal_dir                                     # [B, 2]
-    offset = torch.linalg.vector_norm(env.position - swarm[:, None], dim=-1)
+    offset = torch.linalg.vector_norm(env.world["position"] - swarm[:, None], dim=-1)
     assert (offset <= 3.0 + 1e-4).all()                           # inside the 3 m disc
-    d = torch.linalg.vector_norm(env.position[:, :, None] - env.position[:, None], dim=-1)
+    d = torch.linalg.vector_norm(env.world["position"][:, :, None] - env.world["position"][:, None], dim=-1)
     d = d + torch.eye(5) * 100
     assert (d >= 1.0).all()                                       # >= 1 m apart
     obstacles = env.obstacles()
-    assert (distance_to_obstacles(env.position, obstacles).amin(-1) >= 1.0).all()  # >= 1 m from obstacles
-    assert torch.equal(env.velocity, torch.zeros_like(env.velocity))
-    assert (env.heading >= -PI).all() and (env.heading < PI).all()
+    assert (distance_to_obstacles(env.world["position"], obstacles).amin(-1) >= 1.0).all()  # >= 1 m from obstacles
+    assert torch.equal(env.world["velocity"], torch.zeros_like(env.world["velocity"]))
+    assert (env.world["heading"] >= -PI).all() and (env.world["heading"] < PI).all()
     # chi is uniform: the goals do not all fall on one side.
     assert (goal_dir[:, 0] > 0).any() and (goal_dir[:, 0] < 0).any()
     # S3 uses d_env = 60.
     s3 = make_env("s3", num_envs=8, seed=1)
-    assert torch.allclose(torch.linalg.vector_norm(s3.goal - centre, dim=-1), torch.full((8,), 60.0), atol=1e-4)
+    assert torch.allclose(torch.linalg.vector_norm(s3.world["goal"] - centre, dim=-1), torch.full((8,), 60.0), atol=1e-4)
 
 
 def test_s5_moving_circles(make_env, place, step_with):
     env = make_env("s5", num_envs=16, seed=2)
-    start = env.moving_position.clone()
+    start = env.world["moving_position"].clone()
     assert start.shape == (16, 2, 2)
     assert ((start >= 10) & (start <= 70)).all()                # starts in [10, 70]^2
-    static = Obstacles(env._static.circles.expand(16, -1, -1), env._static.rectangles.expand(16, -1, -1))
+    static = Obstacles(torch.tensor(env.cfg.circles).expand(16, -1, -1), torch.tensor(env.cfg.rectangles).expand(16, -1, -1))
     assert (distance_to_obstacles(start, static).amin(-1) >= 3.0).all()    # radius 3, clear of static ones
-    gap = torch.linalg.vector_norm(start[:, :, None] - env.position[:, None], dim=-1).amin(-1)
+    gap = torch.linalg.vector_norm(start[:, :, None] - env.world["position"][:, None], dim=-1).amin(-1)
     assert (gap >= 8.0).all()                                     # >= 8 m from the swarm
-    assert (torch.linalg.vector_norm(start - env.goal[:, None], dim=-1) >= 8.0).all()  # ... and the goal
-    speed = torch.linalg.vector_norm(env.moving_velocity, dim=-1)
+    assert (torch.linalg.vector_norm(start - env.world["goal"][:, None], dim=-1) >= 8.0).all()  # ... and the goal
+    speed = torch.linalg.vector_norm(env.world["moving_velocity"], dim=-1)
     assert torch.allclose(speed, torch.full_like(speed, 0.5))
-    td = env._output()
+    td = env.current()
     td["agents", "action"] = torch.zeros(16, 5, 2)
     out = env.step(td)["next"]
     # 0.5 m/s for 0.2 s: 0.1 m per step (no reflection that close to the start box).
@@ -111,23 +111,23 @@ def test_s5_moving_circles(make_env, place, step_with):
     assert torch.allclose(moved, torch.full_like(moved, 0.1), atol=1e-5)
     # The laser sees the moving circles: one at (20, 20), r 3, UAV at (10, 20) facing +x -> 20 - 3 - 10 = 7.
     env = make_env("s5", num_envs=1, seed=2)
-    env.moving_position = torch.tensor([[[20.0, 20.0], [60.0, 70.0]]])
-    place(env, [[[10.0, 20.0], [10.0, 5.0], [5.0, 5.0], [5.0, 10.0], [2.0, 2.0]]], [[0.0] * 5], [[70.0, 70.0]])
-    assert env.sensed["scan"][0, 0, 0].item() == pytest.approx(7.0, abs=1e-5)
-    assert env.sensed["scan_obstacle"][0, 0, 0].item() == 1   # static circle 0, then the moving ones
+    env.place([[[10.0, 20.0], [10.0, 5.0], [5.0, 5.0], [5.0, 10.0], [2.0, 2.0]]], [[0.0] * 5], [[70.0, 70.0]],
+              moving_position=[[[20.0, 20.0], [60.0, 70.0]]])
+    assert env.world["sensed"]["scan"][0, 0, 0].item() == pytest.approx(7.0, abs=1e-5)
+    assert env.world["sensed"]["scan_obstacle"][0, 0, 0].item() == 1   # static circle 0, then the moving ones
 
 
 def test_s5_circles_reflect_off_the_box(make_env):
     env = make_env("s5", num_envs=1, seed=0)
-    env.moving_position = torch.tensor([[[79.95, 40.0], [40.0, 0.02]]])
-    env.moving_velocity = torch.tensor([[[0.5, 0.0], [0.0, -0.5]]])
-    td = env._output()
+    env.world["moving_position"] = torch.tensor([[[79.95, 40.0], [40.0, 0.02]]])
+    env.world["moving_velocity"] = torch.tensor([[[0.5, 0.0], [0.0, -0.5]]])
+    td = env.current()
     td["agents", "action"] = torch.zeros(1, 5, 2)
     env.step(td)
     # 79.95 + 0.1 = 80.05 -> 2 * 80 - 80.05 = 79.95, vx -> -0.5; 0.02 - 0.1 = -0.08 -> 0.08, vy -> 0.5.
-    assert env.moving_position[0].tolist() == [pytest.approx([79.95, 40.0], abs=1e-4),
+    assert env.world["moving_position"][0].tolist() == [pytest.approx([79.95, 40.0], abs=1e-4),
                                                pytest.approx([40.0, 0.08], abs=1e-5)]
-    assert env.moving_velocity[0].tolist() == [[-0.5, 0.0], [0.0, 0.5]]
+    assert env.world["moving_velocity"][0].tolist() == [[-0.5, 0.0], [0.0, 0.5]]
 
 
 # ---------------------------------------------------------------- termination
@@ -152,7 +152,7 @@ def test_crash_uses_true_distance_not_the_laser(make_env, place, step_with):
     c = [10.0 + 0.46 * math.cos(PI / 36), 10.0 + 0.46 * math.sin(PI / 36)]
     env = make_env("s1", n_uavs=1, circles=[[c[0], c[1], 0.01]], action_mode="velocity")
     place(env, [[[10.0, 10.0]]], [[0.0]], [[70.0, 70.0]])
-    assert torch.equal(env.sensed["scan"], torch.full((1, 1, 36), 10.0))
+    assert torch.equal(env.world["sensed"]["scan"], torch.full((1, 1, 36), 10.0))
     out = step_with(env, [[[0.0, 0.0]]])
     assert out["terminated"].tolist() == [[True]]
     assert out["episode", "crashed"].tolist() == [True] and out["episode", "success"].tolist() == [False]
@@ -199,10 +199,10 @@ def test_done_is_per_env(make_env, place, step_with):
 # ---------------------------------------------------------------- resets
 def test_partial_reset_only_changes_masked_envs(make_env):
     env = make_env("train", num_envs=3, seed=4)
-    td = env._output()
+    td = env.current()
     td["agents", "action"] = torch.zeros(3, 5, 2)
     env.step(td)
-    before = env._output()
+    before = env.current()
     # TorchRL's contract: a partial reset receives the current data (as rollout passes it) plus the mask.
     td_in = before.clone()
     td_in["_reset"] = torch.tensor([[True], [False], [True]])
@@ -218,15 +218,15 @@ def test_partial_reset_only_changes_masked_envs(make_env):
         assert not torch.equal(out["goal"][i], before["goal"][i])
         assert torch.equal(out["agents", "velocity"][i], torch.zeros(5, 2))
     # The env's own state agrees with what reset returned.
-    assert torch.equal(env.position, out["agents", "position"])
+    assert torch.equal(env.world["position"], out["agents", "position"])
     # An all-False mask changes nothing.
-    position = env.position.clone()
+    position = env.world["position"].clone()
     env.reset(TensorDict({"_reset": torch.zeros(3, 1, dtype=torch.bool)}, batch_size=[3]))
-    assert torch.equal(env.position, position)
+    assert torch.equal(env.world["position"], position)
 
 
 def test_rollout_continues_across_episode_ends():
-    env = FlockingEnv("s1", num_envs=2, seed=0, max_steps=2)
+    env = FlockingEnv("s1", num_envs=2, seed=0, max_steps=2, extras="all")
     td = env.rollout(5, policy=zero_policy, break_when_any_done=False)
     assert td.batch_size == (2, 5)
     # Episodes of 2 steps: truncated at steps 2 and 4, then a fresh episode.
@@ -245,20 +245,20 @@ def _positions(env, steps=4):
 
 @pytest.mark.parametrize("scenario", ["train", "s4", "s5"])
 def test_same_seed_same_rollout(scenario):
-    a = _positions(FlockingEnv(scenario, num_envs=2, seed=11))
-    b = _positions(FlockingEnv(scenario, num_envs=2, seed=11))
+    a = _positions(FlockingEnv(scenario, num_envs=2, seed=11, extras="all"))
+    b = _positions(FlockingEnv(scenario, num_envs=2, seed=11, extras="all"))
     for key in (("next", "agents", "position"), ("next", "agents", "observation"), ("next", "agents", "reward"),
                 ("next", "goal")):
         assert torch.equal(a[key], b[key]), key
-    c = _positions(FlockingEnv(scenario, num_envs=2, seed=12))
+    c = _positions(FlockingEnv(scenario, num_envs=2, seed=12, extras="all"))
     assert not torch.equal(a["next", "agents", "position"], c["next", "agents", "position"])
 
 
 def test_set_seed_restarts_the_stream():
-    env = FlockingEnv("s4", num_envs=2, seed=0)
+    env = FlockingEnv("s4", num_envs=2, seed=0, extras="all")
     env.set_seed(11)
     a = _positions(env)
-    b = _positions(FlockingEnv("s4", num_envs=2, seed=11))
+    b = _positions(FlockingEnv("s4", num_envs=2, seed=11, extras="all"))
     assert torch.equal(a["next", "agents", "observation"], b["next", "agents", "observation"])
     # With random actions, seeding torch as well reproduces the whole rollout.
     torch.manual_seed(5)

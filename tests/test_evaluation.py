@@ -1,7 +1,5 @@
-"""Evaluation protocol (SPEC 5): batched episodes, records at the first done, summaries, intervals.
-
-Expected values are worked out by hand from SPEC.md in the comments beside them.
-"""
+"""Evaluation protocol (specification section 5): batched episodes, records at the first done,
+summaries, intervals. Expected values are worked out by hand in the comments beside them."""
 
 from __future__ import annotations
 
@@ -12,11 +10,12 @@ import pytest
 import torch
 from tensordict.nn import TensorDictModule
 
-from flock_torchrl import ConfigError, FlockingEnv
-from flock_torchrl import evaluation as ev
-from flock_torchrl.evaluation import (EvaluationResult, adapt_n_agents, evaluate, goal_seeking_policy, mean_std,
-                                      policy_path_override, wilson_interval)
-from flock_torchrl.metrics import METRIC_KEYS
+from flock_torchrl import CheckpointError, ConfigError, FlockingEnv
+from flock_torchrl.policies.models import adapt_n_agents
+from flock_torchrl.policies.registry import policy_config, policy_id
+from flock_torchrl.run import evaluation as ev
+from flock_torchrl.run.evaluation import EvaluationResult, evaluate, goal_seeking_policy, mean_std, wilson_interval
+from flock_torchrl.world.metrics import METRIC_KEYS
 
 Z2 = 1.959963984540054 ** 2
 
@@ -28,7 +27,7 @@ def test_goal_seeking_swarm_in_s1_has_the_known_metrics():
     # No obstacles: nothing to crash into, every swarm flies straight to the goal.
     assert e["reached"].all() and not e["crashed"].any() and e["success"].all()
     assert (e["safe_success"] <= e["success"]).all()
-    # Nearest-obstacle distance is capped at 10 m and S1 has none (SPEC 5: "exactly 10.000").
+    # Nearest-obstacle distance is capped at 10 m and S1 has none (section 5: "exactly 10.000").
     assert torch.equal(e["d_min_obs"], torch.full((6,), 10.0))
     # t_goal bounds. Swarm centre 2 d_env = 80 m from the goal, UAVs within 3 m of it: the nearest
     # UAV starts >= 77 m away and must come within 1 m, i.e. fly >= 76 m. Its command has speed
@@ -64,15 +63,26 @@ def _reference_first_done(env: FlockingEnv, policy) -> dict[str, torch.Tensor]:
     return {k: torch.stack([s[k] for s in steps])[first, torch.arange(env.num_envs)] for k in METRIC_KEYS}
 
 
-def test_records_come_from_each_envs_first_done_and_compaction_changes_nothing(monkeypatch):
+class _Held(FlockingEnv):
+    """The plain protocol's env: a world that is done stays as it is when stepped (the
+    reference keeps stepping every world, where ``FlockingEnv`` refuses)."""
+
+    def _checked_action(self, tensordict):
+        for key in ("terminated", "truncated"):
+            self.world.set(key, torch.zeros_like(self.world[key]))
+        return super()._checked_action(tensordict)
+
+
+def test_records_come_from_each_envs_first_done_and_subsets_change_nothing(monkeypatch):
     # S5 (static + moving circles) without the instinct: straight flights crash at different times,
-    # so the batch compacts (40 envs >= MIN_COMPACT_BATCH) mid-run.
+    # so the running worlds continue in ever smaller envs.
     calls = []
-    real = ev.compact_env
-    monkeypatch.setattr(ev, "compact_env", lambda env, keep: calls.append(int(keep.numel())) or real(env, keep))
-    result = evaluate(goal_seeking_policy(), scenario="s5", n_episodes=40, seed=3, max_steps=90)
-    assert calls, "the rollout never compacted; the test would not check compaction"
-    reference = _reference_first_done(FlockingEnv("s5", num_envs=40, seed=3, max_steps=90), goal_seeking_policy())
+    real = FlockingEnv.subset
+    monkeypatch.setattr(FlockingEnv, "subset", lambda env, keep: calls.append(int(keep.numel())) or real(env, keep))
+    result = evaluate(goal_seeking_policy(), scenario="s5", reading="literal", n_episodes=40, seed=3, max_steps=90)
+    assert len(calls) > 3, "the rollout never took a subset; the test would not check it"
+    reference = _reference_first_done(_Held("s5", num_envs=40, seed=3, reading="literal", max_steps=90),
+                                      goal_seeking_policy())
     assert result.episodes["crashed"].any() and result.episodes["steps"].unique().numel() > 5
     for k in METRIC_KEYS:
         assert torch.allclose(result.episodes[k].double(), reference[k].double(), atol=1e-5, equal_nan=True), k
@@ -87,7 +97,6 @@ def test_max_steps_truncates_every_episode():
     assert math.isnan(s["t_goal"]) and s["success_rate"] == 0.0
     # Wilson upper bound for k = 0: z^2 / (n + z^2).
     assert s["success_rate_high"] == pytest.approx(Z2 / (3 + Z2))
-    assert result.env_overrides["max_steps"] == 10
 
 
 def test_summary_cells_rates_records_csv_and_pooling(tmp_path):
@@ -98,7 +107,7 @@ def test_summary_cells_rates_records_csv_and_pooling(tmp_path):
         d_c=torch.tensor([1.0, 2.0, 3.0, 4.0]), t_goal=torch.tensor([30.0, 40.0, math.nan, 50.0]),
         steps=torch.tensor([150, 200, 37, 250]),
     )
-    r = EvaluationResult("P", "train", 0, {}, episodes)
+    r = EvaluationResult("P", "train", "literal", 0, episodes)
     s = r.summary()
     # d_c: mean 2.5, population std sqrt(((1.5)^2 + 0.5^2) * 2 / 4) = sqrt(1.25).
     assert s["d_c"] == pytest.approx(2.5) and s["d_c_std"] == pytest.approx(math.sqrt(1.25))
@@ -121,16 +130,14 @@ def test_summary_cells_rates_records_csv_and_pooling(tmp_path):
 def test_policy_resolution_errors_name_the_problem(tmp_path):
     with pytest.raises(ConfigError, match="unknown policy"):
         evaluate("no_such_policy", n_episodes=1)
-    with pytest.raises(FileNotFoundError, match="scripts/train.py policy=policy3_g"):
-        evaluate("Policy3-G", n_episodes=1, checkpoint_dir=tmp_path)
-    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+    with pytest.raises(CheckpointError, match="scripts/train.py policy=policy3_g"):
+        evaluate("Policy3-G", reading="literal", n_episodes=1, checkpoints_dir=tmp_path)
+    with pytest.raises(CheckpointError, match="no checkpoint"):
         evaluate(str(tmp_path / "missing.pt"), n_episodes=1)
     with pytest.raises(ValueError, match="n_episodes"):
         evaluate(goal_seeking_policy(), n_episodes=0)
-    assert ev.load_policy_config("Policy3-G")["env"]["instinct"] is True
-    assert ev.policy_config_stem("Policy-MA") == "policy_ma"
-    assert policy_path_override(["policy=ckpt/seed0.pt", "policy=policy3_g", "x=a/b"]) == [
-        "checkpoint=ckpt/seed0.pt", "policy=policy3_g", "x=a/b"]
+    assert policy_config("Policy3-G")[1]["instinct"] is True
+    assert policy_id("Policy-MA") == "policy_ma"
 
 
 def test_shared_actor_built_for_five_uavs_runs_nine():
@@ -151,9 +158,9 @@ def test_every_policy_sees_the_same_starts():
     # The policies' scenario overrides (field of view, instinct, velocity actions) do not touch
     # the spawn draws, so with EVAL_SEED every policy starts from the same layouts.
     layouts = []
-    for overrides in ({}, ev.load_policy_config("policy3_g")["env"], ev.load_policy_config("policy1")["env"],
-                      {"fov": 0.5 * math.pi, "instinct": False, "action_mode": "velocity"}):
-        td = FlockingEnv("s5", num_envs=8, seed=ev.EVAL_SEED, **overrides).reset()
+    for policy in (None, "policy3_g", "policy1", "policy_ma"):
+        td = FlockingEnv("s5", num_envs=8, seed=ev.EVAL_SEED, reading="literal", policy_id=policy,
+                         extras="physics").reset()
         layouts.append((td["agents", "position"], td["agents", "heading"], td["goal"], td["obstacles", "position"]))
     for other in layouts[1:]:
         assert all(torch.equal(a, b) for a, b in zip(layouts[0], other))

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.geometry import (
+from flock_torchrl.world.geometry import (
     Obstacles, cast_rays, circular_mean, distance_to_obstacles, nearest_obstacle_distance, pairwise,
     relative_angle, wrap,
 )

@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.instinct import instinct_command, repulsion, rotate_90
-from flock_torchrl.sensors import observe_neighbours
+from flock_torchrl.world.instinct import instinct_command, repulsion, rotate_90
+from flock_torchrl.world.sensors import observe_neighbours
 
 PI = math.pi
 FOV = 0.5 * PI
@@ -68,7 +68,7 @@ def scene(position, heading, beams, fov=FOV):
     """Camera measurements (exact) and a beams tensor for ``instinct_command``."""
     p = torch.tensor([position])
     h = torch.tensor([heading])
-    return p, h, observe_neighbours(p, h, 5.0, fov), torch.tensor([beams])
+    return p, h, observe_neighbours(p, h, 5.0, fov / 2), torch.tensor([beams])
 
 
 def call(p, h, goal, beams, nb, tangential=True, safe=2.0):

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.metrics import episode_summary, new_accumulator, step_statistics, update_episode
+from flock_torchrl.world.metrics import episode_summary, new_accumulator, step_statistics, update_episode
 
 PI = math.pi
 DT = 0.2

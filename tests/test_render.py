@@ -11,9 +11,10 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from flock_torchrl import FlockingEnv
-from flock_torchrl.evaluation import goal_seeking_policy
-from flock_torchrl.render import (binned_mean_ci, find_reward_logs, make_figures, plot_trajectory, read_reward_log,
-                                  render_frame, rollout_states, save_animation, trajectory_grid)
+from flock_torchrl.report.figures import (binned_mean_ci, make_figures, plot_trajectory, save_animation,
+                                          training_curve, trajectory_grid)
+from flock_torchrl.run.evaluation import goal_seeking_policy
+from flock_torchrl.world.frame import render_frame, rollout_states
 
 
 def _red(img: np.ndarray) -> np.ndarray:
@@ -24,7 +25,7 @@ def _red(img: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def s5_rollout():
     """Two S5 envs (static and moving obstacles) for 12 steps of the scripted policy."""
-    env = FlockingEnv("s5", num_envs=2, seed=0)
+    env = FlockingEnv("s5", num_envs=2, seed=0, extras="physics")
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         rollout = env.rollout(12, goal_seeking_policy(), break_when_any_done=False)
     return rollout, env
@@ -33,28 +34,33 @@ def s5_rollout():
 def test_render_frame_is_an_rgb_image_of_the_requested_size():
     env = FlockingEnv("train", num_envs=2, seed=0)
     env.reset()
-    img = env.render(env_index=1)
+    img = env.render("rgb_array", env_index=1)
     assert img.shape == (512, 512, 3) and img.dtype == np.uint8
     assert _red(img).any()  # the red obstacles are drawn
     small = render_frame(env, 0, size=(120, 200))
     assert small.shape == (120, 200, 3) and small.dtype == np.uint8
     with pytest.raises(IndexError):
         render_frame(env, env_index=2)
+    with pytest.raises(ValueError, match="human"):
+        env.render("human")
 
 
 def test_field_of_view_wedges_follow_the_config():
-    narrow = FlockingEnv("s1", num_envs=1, seed=0, fov=0.5 * math.pi)
-    wide = FlockingEnv("s1", num_envs=1, seed=0, fov=2 * math.pi)
-    narrow.reset()
-    wide.reset()
-    a, b = render_frame(narrow, size=200), render_frame(wide, size=200)
+    narrow = FlockingEnv("s1", num_envs=1, seed=0, reading="literal", fov=0.5 * math.pi)
+    half = FlockingEnv("s1", num_envs=1, seed=0, reading="paper_fit", fov=0.5 * math.pi)
+    wide = FlockingEnv("s1", num_envs=1, seed=0, reading="literal", fov=2 * math.pi)
+    position = [[[10.0, 10.0], [20.0, 20.0], [30.0, 30.0], [40.0, 10.0], [10.0, 40.0]]]
+    for env in (narrow, half, wide):
+        env.place(position, [[0.0, 1.0, 2.0, 3.0, -1.0]], [[70.0, 70.0]])
+    a, h, b = (render_frame(e, size=200) for e in (narrow, half, wide))
     bare = render_frame(narrow, size=200, show_fov=False)
-    tinted = [int((img.astype(int).sum(-1) < 3 * 250).sum()) for img in (bare, a, b)]
-    assert tinted[0] < tinted[1] < tinted[2]  # full circles cover more than 90 degree wedges
+    tinted = [int((img.astype(int).sum(-1) < 3 * 250).sum()) for img in (bare, a, h, b)]
+    # 90 degree wedges < half discs (paper_fit's half-angle) < full discs.
+    assert tinted[0] < tinted[1] < tinted[2] < tinted[3]
 
 
 def test_rollout_states_stop_at_the_first_done():
-    env = FlockingEnv("s1", num_envs=1, seed=0, max_steps=5)
+    env = FlockingEnv("s1", num_envs=1, seed=0, max_steps=5, extras="physics")
     with torch.no_grad():
         rollout = env.rollout(20, goal_seeking_policy(), break_when_any_done=False)
     states = rollout_states(rollout, 0)
@@ -76,21 +82,22 @@ def test_trajectory_plot_and_animation_files(tmp_path, s5_rollout):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # atomic writes
 
 
-def test_reward_curves_from_run_logs(tmp_path):
-    runs = tmp_path / "runs"
+def test_reward_curves_from_checkpoints(tmp_path):
+    from flock_torchrl.policies.checkpoint import save_checkpoint
+    from flock_torchrl.run.trainer import EPISODE_COLUMNS
+
+    root = tmp_path / "checkpoints"
     for seed, offset in ((0, 0.0), (1, 2.0)):
-        run = runs / "fast" / "policy3_g" / f"seed{seed}"
-        run.mkdir(parents=True)
-        lines = ["episode,reward"] + [f"{e},{offset + e / 100}" for e in range(1, 201)]
-        (run / "episodes.csv").write_text("\n".join(lines) + "\n")
-    (runs / "fast" / "policy3_g" / "seed0" / "other.csv").write_text("step,loss\n1,0.5\n")
-    logs = find_reward_logs(runs)
-    assert list(logs) == ["Policy3-G"] and len(logs["Policy3-G"]) == 2
-    e, r = read_reward_log(logs["Policy3-G"][0])
+        curve = torch.zeros(200, len(EPISODE_COLUMNS), dtype=torch.float64)
+        curve[:, 0] = torch.arange(1, 201)
+        curve[:, EPISODE_COLUMNS.index("reward")] = offset + torch.arange(1, 201) / 100
+        save_checkpoint({"meta": {}, "actor": {}, "curve": curve}, root / "literal" / "policy3_g" / f"seed{seed}.pt",
+                        kind="policy")
+    e, r = training_curve(root / "literal" / "policy3_g" / "seed0.pt")
     assert e.shape == (200,) and r[0] == pytest.approx(0.01)
     # One run, episodes 1..100 -> block 0 with mean (1 + ... + 100) / 100 / 100 = 0.505.
     x, mean, half = binned_mean_ci(e, r, 100)
     assert list(x) == [100.0, 200.0] and mean[0] == pytest.approx(0.505) and (half > 0).all()
-    written = make_figures([4], runs_dir=runs, out_dir=tmp_path / "figures", log=lambda m: None)
+    written = make_figures("literal", tmp_path / "figures", figs=[4], checkpoints_dir=root, log=lambda m: None)
     assert written == [tmp_path / "figures" / "fig4_rewards.png"] and written[0].is_file()
-    assert make_figures([4], runs_dir=tmp_path / "empty", out_dir=tmp_path / "figures", log=lambda m: None) == []
+    assert make_figures("paper_fit", tmp_path / "figures2", figs=[4], checkpoints_dir=root, log=lambda m: None) == []

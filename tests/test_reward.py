@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.reward import (
+from flock_torchrl.world.reward import (
     collision_reward, flocking_reward, goal_reward, smoothness_reward, total_reward,
 )
 
@@ -165,10 +165,10 @@ def test_env_reward_stores_the_policy_action_even_under_the_instinct(make_env, p
     # give r_v = 0 at step 2, whatever the executed commands were.
     env = place(make_env("s1", n_uavs=2, instinct=True), [[[40.0, 40.0], [41.0, 40.0]]], [[0.0, 0.0]],
                 [[40.0, 80.0]])
-    td = env._output()
+    td = env.current()
     td["agents", "action"] = torch.tensor([[[0.3, -0.2], [0.3, -0.2]]])
     out = env.step(td)
     assert out["next", "agents", "instinct"][0].tolist() == [True, False]
     # The stored action is the policy's, not the repulsion command that was executed.
     assert torch.equal(out["agents", "action"], torch.tensor([[[0.3, -0.2], [0.3, -0.2]]]))
-    assert torch.allclose(env.prev_action, torch.tensor([[[0.3, -0.2], [0.3, -0.2]]]))
+    assert torch.allclose(env.world["prev_action"], torch.tensor([[[0.3, -0.2], [0.3, -0.2]]]))

@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.geometry import Obstacles
-from flock_torchrl.sensors import (
+from flock_torchrl.world.geometry import Obstacles
+from flock_torchrl.world.sensors import (
     Neighbours, add_sensor_noise, beam_offsets, camera_observation, goal_observation, laser_scan,
     observe_neighbours, scan_observation, shortest_beams, swarm_centre_state, visibility,
 )
@@ -53,17 +53,17 @@ def test_laser_in_env_rectangle_and_range(make_env, place):
     # the face). Beam 0 (+x) would hit the circle at x = 34 after 14 m > 10: capped.
     env = make_env("train", n_uavs=1)
     place(env, [[[20.0, 40.0]]], [[0.0]], [[20.0, 0.0]])
-    scan = env.sensed["scan"][0, 0]
+    scan = env.world["sensed"]["scan"][0, 0]
     assert scan[18].item() == pytest.approx(7.0, abs=1e-5)
     assert scan[17].item() == pytest.approx(7 / math.cos(PI / 18), abs=1e-5)
     assert scan[19].item() == pytest.approx(7 / math.cos(PI / 18), abs=1e-5)
     assert scan[0].item() == 10.0
     # Rectangles come after the circle: index 1 = the rectangle at (10, 40).
-    assert env.sensed["scan_obstacle"][0, 0, 18].item() == 1
+    assert env.world["sensed"]["scan_obstacle"][0, 0, 18].item() == 1
     # o_scan = observation[2:8]: [7/10, alpha(beam 18) = -pi -> -1.0], then 0.71080 with alphas
     # 170 deg -> 17/18 = 0.94444 and -170 deg -> -0.94444 (the two may come in either order: their
     # float lengths differ by an ulp).
-    o_scan = env.sensed["observation"][0, 0, 2:8]
+    o_scan = env.world["sensed"]["observation"][0, 0, 2:8]
     assert o_scan[0].item() == pytest.approx(0.7, abs=1e-6)
     assert o_scan[1].item() == -1.0
     assert o_scan[2].item() == pytest.approx(0.710803, abs=1e-5)
@@ -71,12 +71,12 @@ def test_laser_in_env_rectangle_and_range(make_env, place):
     assert sorted([o_scan[3].item(), o_scan[5].item()]) == pytest.approx([-17 / 18, 17 / 18], abs=1e-6)
     # Facing +y instead, the rectangle (world angle pi) sits at +90 deg: beam 9, alpha 0.5.
     place(env, [[[20.0, 40.0]]], [[PI / 2]], [[20.0, 0.0]])
-    o_scan = env.sensed["observation"][0, 0, 2:8]
+    o_scan = env.world["sensed"]["observation"][0, 0, 2:8]
     assert o_scan[:2].tolist() == pytest.approx([0.7, 0.5], abs=1e-6)
     # Inside an obstacle every beam is 0: o_scan's distances are 0, at beams 0, 1, 2.
     place(env, [[[40.0, 41.0]]], [[0.0]], [[20.0, 0.0]])
-    assert torch.equal(env.sensed["scan"][0, 0], torch.zeros(36))
-    assert env.sensed["observation"][0, 0, 2:8].tolist() == pytest.approx([0, 0, 0, 1 / 18, 0, 2 / 18])
+    assert torch.equal(env.world["sensed"]["scan"][0, 0], torch.zeros(36))
+    assert env.world["sensed"]["observation"][0, 0, 2:8].tolist() == pytest.approx([0, 0, 0, 1 / 18, 0, 2 / 18])
 
 
 def test_o_scan_ordering_ties_and_alpha():
@@ -122,23 +122,23 @@ def test_visibility_fov_edges_and_strict_range():
                               [5.0, 0.0],                                   # d = d_v = 5: not (strict <)
                               [4.99, 0.0]]])                                # 4.99 < 5: visible
     heading = torch.zeros(1, 7)
-    nb = observe_neighbours(position, heading, 5.0, FOV)
+    nb = observe_neighbours(position, heading, 5.0, FOV / 2)
     assert nb.visible[0, 0].tolist() == [False, True, True, False, False, False, True]
     assert nb.bearing[0, 0, 1].item() == pytest.approx(PI / 4)
     # The visibility rule itself on raw numbers: |alpha| <= phi_v/2 and d < d_v, never oneself.
     v = visibility(torch.tensor([[[0.0, 5.0, 4.999, 1.0]]]), torch.tensor([[[0.0, 0.0, PI / 4, -PI / 4 - 1e-4]]]),
-                   5.0, FOV)
+                   5.0, FOV / 2)
     assert v[0, 0].tolist() == [False, False, True, False]
 
 
 def test_fov_two_pi_sees_all_within_range():
     # Neighbours straight behind (bearing wrap(pi) = -pi), beside, ahead; one beyond 5 m.
     position = torch.tensor([[[0.0, 0.0], [-2.0, 0.0], [0.0, 3.0], [1.0, 0.0], [0.0, -6.0]]])
-    nb = observe_neighbours(position, torch.zeros(1, 5), 5.0, 2 * PI)
+    nb = observe_neighbours(position, torch.zeros(1, 5), 5.0, PI)
     assert nb.visible[0, 0].tolist() == [False, True, True, True, False]
     assert nb.bearing[0, 0, 1].item() == pytest.approx(-PI)
     # With phi_v = pi/2 only the one ahead.
-    assert observe_neighbours(position, torch.zeros(1, 5), 5.0, FOV).visible[0, 0].tolist() == [
+    assert observe_neighbours(position, torch.zeros(1, 5), 5.0, FOV / 2).visible[0, 0].tolist() == [
         False, False, False, True, False]
 
 
@@ -147,7 +147,7 @@ def test_o_cam_ordering_padding_and_heading_difference():
     position = torch.tensor([[[0.0, 0.0], [3.0, 0.0], [1.0, 0.0], [0.0, 0.0], [-1.0, 0.0]]])
     position[0, 3] = torch.tensor([2 * math.cos(0.5), 2 * math.sin(0.5)])  # 2 m at bearing 0.5
     heading = torch.tensor([[0.0, 0.5, -0.3, 3.0, 0.0]])
-    nb = observe_neighbours(position, heading, 5.0, FOV)
+    nb = observe_neighbours(position, heading, 5.0, FOV / 2)
     out = camera_observation(nb, 3, 5.0)
     assert out.shape == (1, 5, 9)
     # Ascending: UAV 2 (1 m, bearing 0, dphi = wrap(0 - (-0.3)) = 0.3 -> 0.3/pi = 0.095493),
@@ -178,20 +178,20 @@ def test_o_cam_ordering_padding_and_heading_difference():
 def test_o_cam_padding_with_nobody_visible_and_fewer_uavs_than_slots():
     # Two UAVs, the second behind the first: UAV 0 sees nobody -> [1, 0, 0] x 3.
     position = torch.tensor([[[0.0, 0.0], [-1.0, 0.0]]])
-    nb = observe_neighbours(position, torch.zeros(1, 2), 5.0, FOV)
+    nb = observe_neighbours(position, torch.zeros(1, 2), 5.0, FOV / 2)
     out = camera_observation(nb, 3, 5.0)
     assert out[0, 0].tolist() == [1.0, 0.0, 0.0] * 3
     # UAV 1 sees UAV 0 (1 m ahead, same heading) then two padded slots (only one other UAV exists).
     assert out[0, 1].tolist() == pytest.approx([0.2, 0.0, 0.0] + [1.0, 0.0, 0.0] * 2)
     # A single UAV: all padding.
-    nb1 = observe_neighbours(torch.zeros(1, 1, 2), torch.zeros(1, 1), 5.0, FOV)
+    nb1 = observe_neighbours(torch.zeros(1, 1, 2), torch.zeros(1, 1), 5.0, FOV / 2)
     assert camera_observation(nb1, 3, 5.0)[0, 0].tolist() == [1.0, 0.0, 0.0] * 3
 
 
 def test_heading_difference_sign_wraps():
     # phi_i = 3.0, phi_j = -3.0: wrap(6.0) = 6 - 2 pi = -0.28319 -> /pi = -0.090140 (not 6/pi).
     position = torch.tensor([[[0.0, 0.0], [1.0, 0.0]]])
-    nb = observe_neighbours(position, torch.tensor([[3.0, -3.0]]), 5.0, 2 * PI)
+    nb = observe_neighbours(position, torch.tensor([[3.0, -3.0]]), 5.0, PI)
     assert nb.heading_difference[0, 0, 1].item() == pytest.approx(6.0 - 2 * PI, abs=1e-6)
     assert nb.heading_difference[0, 1, 0].item() == pytest.approx(2 * PI - 6.0, abs=1e-6)
     out = camera_observation(nb, 3, 5.0)
@@ -235,7 +235,7 @@ def test_observation_and_state_layout_in_env(make_env, place):
     # (8, 10), heading 0.5; goal (50, 10).
     env = make_env("s1", n_uavs=2)
     place(env, [[[10.0, 10.0], [8.0, 10.0]]], [[0.0, 0.5]], [[50.0, 10.0]])
-    obs, state = env.sensed["observation"][0], env.sensed["state"][0]
+    obs, state = env.world["sensed"]["observation"][0], env.world["sensed"]["state"][0]
     assert obs.shape == (2, 17) and state.shape == (2, 20)
     o_scan = [1.0, 0.0, 1.0, 1 / 18, 1.0, 1 / 9]  # beams 0, 1, 2 all at 10
     pad = [1.0, 0.0, 0.0]
@@ -285,10 +285,10 @@ def test_add_sensor_noise_statistics_and_clipping():
 def test_s4_noise_reaches_observation_not_state_reward_or_metrics(make_env):
     clean, noisy = make_env("train", num_envs=2, seed=3), make_env("s4", num_envs=2, seed=3)
     # Same seed, same spawn (the noise is drawn after the layout).
-    assert torch.equal(clean.position, noisy.position)
-    assert not torch.equal(clean.sensed["observation"], noisy.sensed["observation"])
-    assert torch.equal(clean.sensed["state"], noisy.sensed["state"])
-    td_c, td_n = clean._output(), noisy._output()
+    assert torch.equal(clean.world["position"], noisy.world["position"])
+    assert not torch.equal(clean.world["sensed"]["observation"], noisy.world["sensed"]["observation"])
+    assert torch.equal(clean.world["sensed"]["state"], noisy.world["sensed"]["state"])
+    td_c, td_n = clean.current(), noisy.current()
     action = torch.rand(2, 5, 2, generator=torch.Generator().manual_seed(1)) * 2 - 1
     td_c["agents", "action"] = action
     td_n["agents", "action"] = action.clone()
@@ -306,4 +306,4 @@ def test_s4_noise_reaches_the_instinct(make_env, place):
     layout = ([[[40.0, 10.0], [41.5, 10.0]]], [[0.0, 0.0]], [[40.0, 70.0]])
     clean = place(make_env("s1", n_uavs=2, instinct=True), *layout)
     noisy = place(make_env("s1", n_uavs=2, instinct=True, noise=True), *layout)
-    assert not torch.allclose(clean.sensed["instinct_command"][0, 0], noisy.sensed["instinct_command"][0, 0])
+    assert not torch.allclose(clean.world["sensed"]["instinct_command"][0, 0], noisy.world["sensed"]["instinct_command"][0, 0])

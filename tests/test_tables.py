@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import csv
 import math
-import runpy
-import sys
 from pathlib import Path
 
 import pytest
 
-from flock_torchrl.evaluation import goal_seeking_policy
-from flock_torchrl.tables import (KEY_COLUMNS, REFERENCE_DIR, VALUE_COLUMNS, comparison_rows, load_reference,
-                                  parse_key_values, reproduce, table_entries, write_table)
+from flock_torchrl.io import write_csv
+from flock_torchrl.report.tables import (KEY_COLUMNS, REFERENCE_DIR, VALUE_COLUMNS, comparison_rows, csv_columns,
+                                         fidelity, fidelity_terms, load_reference, render_tables, reproduce,
+                                         table_entries)
+from flock_torchrl.run.evaluation import goal_seeking_policy
+from flock_torchrl.world.metrics import CELL_METRICS
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED_PAPER = Path("/work/shared/paper")
@@ -51,8 +52,9 @@ def test_written_table_has_the_papers_rows_and_columns(tmp_path, table):
     first = table_entries(table)[0].key
     ours = {c: 1.0 for c in VALUE_COLUMNS}
     ours.update(success_rate=0.9, safe_success_rate=0.8, n_episodes=500)
-    md, csv_path = write_table(table, {first: ours}, tmp_path)
-    fields, rows = _read(csv_path)
+    write_csv(tmp_path / f"table{table}.csv", csv_columns(table), comparison_rows(table, {first: ours}))
+    render_tables(tmp_path, "literal", 500, 2024)
+    fields, rows = _read(tmp_path / f"table{table}.csv")
     assert set(ref_fields) <= set(fields)  # every paper column, holding our value
     assert "safe_success_rate" in fields
     for c in VALUE_COLUMNS:
@@ -64,8 +66,9 @@ def test_written_table_has_the_papers_rows_and_columns(tmp_path, table):
     assert float(row["d_c_paper"]) == float(ref["d_c"])
     assert float(row["d_c_diff"]) == pytest.approx(1.0 - float(ref["d_c"]), abs=1e-5)
     assert rows[1]["d_c"] == "" and float(rows[1]["d_c_paper"]) == float(ref_rows[1]["d_c"])
-    text = md.read_text()
+    text = (tmp_path / f"table{table}.md").read_text()
     assert text.count("| paper |") == len(ref_rows) and "90.0 %" in text and "safe success" in text
+    assert "Reading **literal**" in text and "fidelity score" in text
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # atomic: no temp files
 
 
@@ -76,11 +79,32 @@ def test_comparison_rows_without_results_keep_paper_values():
     assert rows[0]["note"] == "not evaluated"
 
 
+def test_fidelity_score_by_hand():
+    # Table III, Policy3-G (paper: d_min_obs 3.549 +- 0.937, d_min_uav 1.627 +- 0.276, d_c 3.393 +- 0.610,
+    # v_error 0.268 +- 0.067, phi_error 0.159 +- 0.219, speed 2.052 +- 0.076, t_goal 36.709 +- 1.434).
+    paper = {r["policy"]: r for r in load_reference(3)[1]}["Policy3-G"]
+    ours = {m: float(paper[m]) for m in CELL_METRICS}
+    ours["d_min_uav"] = 1.627 - 2 * 0.276          # two paper stds off: term 2
+    ours["v_error"] = 0.268 + 0.134                # denominator max(0.067, 0.0268, 0.05) = 0.067: term 2
+    ours["t_goal"] = 36.709 + 36.709 * 0.1 * 3     # max(1.434, 3.6709, 0.05) = 3.6709: term 3
+    ours["phi_error"] = 0.159 + 0.219 / 2          # term 0.5
+    rows = comparison_rows(3, {("Policy3-G",): ours})
+    terms = fidelity_terms([r for r in rows if r["policy"] == "Policy3-G"])
+    assert sorted(terms) == pytest.approx(sorted([0, 2, 0, 2, 0.5, 0, 3]), abs=1e-9)
+    score = fidelity({3: rows})
+    assert score.score == pytest.approx(7.5 / 7) and score.terms == 7 and not score.complete
+    assert score.expected == (12 + 25) * 7
+    # A row the paper lacks (the paper recipe's own) counts nothing; a missing value counts nothing.
+    extra = dict(rows[0], policy="Policy3-G (paper recipe)", d_c_paper=math.nan)
+    assert fidelity({3: [*rows, extra]}).terms == 7
+    # 0.05 floor: paper 0.002 +- 0.002 (Table IV, S1 Policy-OP v_error), ours 0.052: term 1.
+    assert fidelity_terms([{"v_error": 0.052, "v_error_paper": 0.002, "v_error_std_paper": 0.002}]) == \
+        pytest.approx([1.0])
+
+
 def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     policy = goal_seeking_policy()
-    # No instinct: straight flights end early (crash on the central circle), keeping the test short.
-    policy.flock_meta = {"policy": "scripted", "env": {"instinct": False}}
-    out = reproduce(3, episodes=4, checkpoint_dir=tmp_path / "none", results_dir=tmp_path / "results",
+    out = reproduce(3, "literal", episodes=4, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "results",
                     policies={"Policy3-G": policy}, only=["Policy3-G"], log=lambda m: None)
     assert out["failed"] == [] and out["markdown"].is_file() and out["csv"].is_file()
     fields, rows = _read(out["csv"])
@@ -92,40 +116,18 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     assert len(episodes) == 4 and {e["policy"] for e in episodes} == {"Policy3-G"}
     _, seeds = _read(tmp_path / "results" / "table3_seeds.csv")
     assert len(seeds) == 1
+    assert "INCOMPLETE" in (tmp_path / "results" / "fidelity.md").read_text()
 
 
-def _run_script(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
-    """``scripts/reproduce.py args`` in this process (runpy; spares a second torch import)."""
-    monkeypatch.setattr(sys, "argv", ["reproduce.py", *args])
-    with pytest.raises(SystemExit) as exit_info:
-        runpy.run_path(str(ROOT / "scripts" / "reproduce.py"), run_name="__main__")
-    out = capsys.readouterr()
-    return exit_info.value.code, out.out, out.err
+def test_reproduce_app_skips_missing_checkpoints_and_writes_only_its_folder(tmp_path, capsys):
+    from flock_torchrl.cli import reproduce_main
 
-
-def test_reproduce_script_skips_missing_checkpoints(tmp_path, monkeypatch, capsys):
-    code, out, _ = _run_script(monkeypatch, capsys, "table=5", "episodes=2", f"checkpoints={tmp_path / 'none'}",
-                               f"results={tmp_path / 'results'}")
-    assert code == 0 and "skipped: no checkpoint" in out
-    text = (tmp_path / "results" / "table5.md").read_text()
-    assert "skipped: no checkpoint" in text and text.count("| paper |") == 5
-    code, _, err = _run_script(monkeypatch, capsys, "tabel=3")
-    assert code == 2 and "tabel=3" in err
-
-
-def test_key_value_arguments_are_typed_and_checked():
-    cfg = parse_key_values(["table=4", "episodes=20", "only=Policy3-G,Policy-MA", "episodes_csv=false"])
-    assert (cfg.table, cfg.episodes, cfg.only, cfg.episodes_csv) == (4, 20, "Policy3-G,Policy-MA", False)
-    with pytest.raises(ValueError, match="episodes"):
-        parse_key_values(["episodes=many"])
-    with pytest.raises(ValueError, match="key=value"):
-        parse_key_values(["table"])
-
-
-def test_evaluate_config_composes():
-    from hydra import compose, initialize_config_dir
-
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
-        cfg = compose("evaluate", overrides=["scenario=tau_v", "scenario.tau_v=0.5", "episodes=3"])
-    assert cfg.episodes == 3 and cfg.scenario.tau_v == 0.5 and cfg.policy.name == "Policy3-G"
-    assert cfg.seed == 2024 and cfg.checkpoint is None
+    out = tmp_path / "out"
+    code = reproduce_main(["table=5", "episodes=2", f"checkpoints_dir={tmp_path / 'none'}",
+                           f"hydra.run.dir={out}"])
+    captured = capsys.readouterr()
+    assert code == 2 and "not evaluated" in captured.err and "skipped" in captured.out
+    text = (out / "table5.md").read_text()
+    assert "not evaluated" in text and text.count("| paper |") == 5
+    assert reproduce_main(["tabel=3"]) == 2 and "tabel" in capsys.readouterr().err
+    assert reproduce_main(["table=7"]) == 2 and "table" in capsys.readouterr().err

@@ -4,24 +4,22 @@ import pickle
 
 import pytest
 import torch
-from omegaconf import OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from flock_torchrl import FlockingEnv, load_policy
-from flock_torchrl.checkpoint import CheckpointError, load_checkpoint
-from flock_torchrl.trainer import make_train_config, train
+from flock_torchrl.policies.checkpoint import CheckpointError, load_checkpoint
+from flock_torchrl.run.trainer import make_train_config, train
 
 
-def tiny(tmp_path, policy="policy3_g", name="run", **overrides):
+def tiny(policy="policy3_g", *overrides, logger="csv"):
     # Short episodes keep the periodic evaluations (untrained policies never arrive) fast.
-    overrides = {"scenario.max_steps": 60, **overrides}
-    return make_train_config(policy, "tiny", logger="csv", run_dir=str(tmp_path / name), seed=0,
-                             overrides=overrides)
+    return make_train_config(policy, "tiny", ["scenario.max_steps=60", "progress=false", f"logger={logger}",
+                                              *overrides])
 
 
 @pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyd_g", "ddpg"), ("policyp_g", "ppo")])
 def test_tiny_run_of_each_learner(tmp_path, policy, algo):
-    result = train(tiny(tmp_path, policy))
+    result = train(tiny(policy), tmp_path / "run")
     ckpt = load_checkpoint(result.checkpoint)
     assert ckpt["meta"]["algo"] == algo and ckpt["meta"]["policy_id"] == policy
     assert ckpt["counters"]["frames"] >= 160 and ckpt["counters"]["updates"] > 0
@@ -39,8 +37,10 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
     assert (result.run_dir / "config.yaml").is_file()
     # the shipped-policy loader returns a module ready for env.rollout, for any N
     policy_module = load_policy(result.checkpoint)
+    meta = policy_module.flock_meta
+    assert meta["reading"] == "literal" and meta["policy_id"] == policy
     for scenario in ("train", "s2"):
-        env = FlockingEnv(scenario, num_envs=2, seed=1, **policy_module.flock_meta["env"])
+        env = FlockingEnv(scenario, num_envs=2, seed=1, reading=meta["reading"], policy_id=meta["policy_id"])
         with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
             td = env.rollout(5, policy_module)
         assert td["agents", "action"].shape == (2, 5, env.n_agents, 2)
@@ -48,13 +48,10 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
 
 
 def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
-    whole = train(tiny(tmp_path, name="whole"))
-    part = make_train_config("policy3_g", "tiny", logger="none", run_dir=str(tmp_path / "split"), seed=0,
-                             overrides={"experiment.max_frames": 96, "scenario.max_steps": 60})
-    first = train(part)
+    whole = train(tiny(), tmp_path / "whole")
+    first = train(tiny("policy3_g", "experiment.max_frames=96"), tmp_path / "split")
     assert first.frames == 96
-    rest = OmegaConf.merge(part, {"resume": True, "experiment": {"max_frames": 160}})
-    resumed = train(rest)
+    resumed = train(tiny("policy3_g", "resume=true"), tmp_path / "split")
     a = load_checkpoint(whole.checkpoint)
     b = load_checkpoint(resumed.checkpoint)
     assert a["counters"]["frames"] == b["counters"]["frames"]
@@ -69,28 +66,25 @@ def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
 
 
 def test_resume_without_checkpoint_is_refused(tmp_path):
-    cfg = tiny(tmp_path)
-    cfg.resume = True
     with pytest.raises(CheckpointError, match="no checkpoint"):
-        train(cfg)
+        train(tiny("policy3_g", "resume=true"), tmp_path / "run")
 
 
 def test_fresh_run_never_overwrites_an_existing_checkpoint(tmp_path):
-    result = train(tiny(tmp_path))
+    result = train(tiny(), tmp_path / "run")
     before = result.checkpoint.read_bytes()
     with pytest.raises(CheckpointError, match="already holds a checkpoint"):
-        train(tiny(tmp_path))
+        train(tiny(), tmp_path / "run")
     assert result.checkpoint.read_bytes() == before
 
 
 def test_mismatched_checkpoint_is_refused(tmp_path):
-    result = train(tiny(tmp_path))
+    result = train(tiny(), tmp_path / "run")
     before = result.checkpoint.read_bytes()
     config_before = (result.run_dir / "config.yaml").read_text()
-    other = tiny(tmp_path, policy="policy3")  # critic on the observation, same folder
-    other.resume = True
-    with pytest.raises(CheckpointError, match="critic_input|policy"):
-        train(other)
+    other = tiny("policy3", "resume=true")  # critic on the observation, same folder
+    with pytest.raises(CheckpointError, match="critic_input"):
+        train(other, tmp_path / "run")
     assert result.checkpoint.read_bytes() == before
     assert (result.run_dir / "config.yaml").read_text() == config_before
 
@@ -109,7 +103,7 @@ class _Boom:
 
 def test_checkpoint_with_code_never_runs(tmp_path, capsys):
     path = tmp_path / "evil.pt"
-    torch.save({"format": "flock_torchrl/checkpoint-v1", "payload": _Boom()}, path)
+    torch.save({"format": "flock_torchrl/checkpoint-v2", "payload": _Boom()}, path)
     with pytest.raises(CheckpointError):
         load_checkpoint(path)
     assert "this must never run" not in capsys.readouterr().out
@@ -118,7 +112,7 @@ def test_checkpoint_with_code_never_runs(tmp_path, capsys):
 def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
     from torchrl.data import TensorDictReplayBuffer
 
-    cfg = tiny(tmp_path, **{"experiment.max_frames": 320})
+    cfg = tiny("policy3_g", "experiment.max_frames=320")
     calls = {"n": 0}
     original = TensorDictReplayBuffer.sample
 
@@ -131,7 +125,7 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypa
 
     monkeypatch.setattr(TensorDictReplayBuffer, "sample", poisoned)
     with pytest.raises(FloatingPointError, match="loss"):
-        train(cfg)
+        train(cfg, tmp_path / "run")
     kept = load_checkpoint(tmp_path / "run")
     assert 0 < kept["counters"]["frames"] < 320
     for value in kept["actor"].values():
@@ -145,11 +139,10 @@ def test_unpicklable_junk_in_checkpoint_dir_is_a_clear_error(tmp_path):
 
 
 def test_resume_auto_starts_fresh_then_leaves_a_finished_run_unchanged(tmp_path):
-    cfg = tiny(tmp_path)
-    cfg.resume = "auto"
-    first = train(cfg)  # no checkpoint yet: a fresh run
+    cfg = tiny("policy3_g", "resume=auto")
+    first = train(cfg, tmp_path / "run")  # no checkpoint yet: a fresh run
     before = load_checkpoint(first.checkpoint)
-    again = train(cfg)  # finished: nothing more is collected or learned
+    again = train(cfg, tmp_path / "run")  # finished: nothing more is collected or learned
     after = load_checkpoint(again.checkpoint)
     assert after["counters"]["frames"] == before["counters"]["frames"]
     for key, value in before["actor"].items():
@@ -158,15 +151,13 @@ def test_resume_auto_starts_fresh_then_leaves_a_finished_run_unchanged(tmp_path)
 
 def test_wandb_logger_works_offline(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_MODE", "offline")
-    cfg = make_train_config("policy3_g", "tiny", logger="wandb", run_dir=str(tmp_path / "wb"), seed=0,
-                            overrides={"scenario.max_steps": 40, "experiment.max_frames": 48})
-    train(cfg)
+    train(tiny("policy3_g", "experiment.max_frames=48", logger="wandb"), tmp_path / "wb")
     assert list((tmp_path / "wb" / "wandb").glob("offline-run-*")), "no offline wandb run was written"
 
 
 def test_several_collector_processes(tmp_path):
     """workers=2: TorchRL's MultiSyncCollector over two env processes, same learner."""
-    result = train(tiny(tmp_path, **{"experiment.workers": 2, "experiment.max_frames": 64}))
+    result = train(tiny("policy3_g", "experiment.workers=2", "experiment.max_frames=64"), tmp_path / "run")
     ckpt = load_checkpoint(result.checkpoint)
     assert ckpt["counters"]["frames"] >= 64 and ckpt["counters"]["updates"] > 0
     assert "env_state" not in ckpt  # several processes: a resume restarts their episodes
