@@ -6,9 +6,13 @@ STAMP   := $(VENV)/.installed
 # torch first, pinned to the CPU build that lies on this kind of machine; the package's
 # range admits it, so pip keeps it (and keeps a user's own CUDA build in their own env).
 TORCH   ?= torch==2.13.0
+# READING=literal|paper_fit picks a reading; empty: the default of conf/world.yaml.
+READING ?=
+R_ARG   := $(if $(READING),reading=$(READING),)
+EPISODES ?= 500
 
-.PHONY: install test test-all demo train train-all reproduce-table3 reproduce-table4 reproduce-table5 \
-        figures benchmark tune-baselines clean
+.PHONY: install test test-all demo train train-all train-paper ship-checkpoints reproduce-table3 reproduce-table4 \
+        reproduce-table5 figures publish tune-baselines benchmark scaling clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -25,40 +29,59 @@ test: $(STAMP)
 test-all: $(STAMP)
 	$(PYTHON) -m pytest -n 2 --dist loadfile
 
-# The main job on a small embedded default: train Policy3-G (the paper's method) briefly,
-# then evaluate it on the training scenario.
+# The main job on a small embedded default: train Policy3-G (the paper's method) for a fixed
+# number of frames, then evaluate it. Re-running it changes nothing (resume=auto).
 demo: $(STAMP)
-	$(PYTHON) scripts/train.py experiment=demo resume=auto
+	$(PYTHON) scripts/train.py experiment=demo resume=auto $(R_ARG)
 
 train: $(STAMP)
-	$(PYTHON) scripts/train.py $(ARGS)
+	$(PYTHON) scripts/train.py $(R_ARG) $(ARGS)
 
-# The shipped checkpoints: the ten learned policies (seed 0) and Policy3-G seeds 1-2 with
-# experiment=fast, two single-threaded runs at a time, then the slim policies into checkpoints/.
+# The ten learned policies, three seeds each, experiment=fast, two single-threaded runs at a
+# time (Hydra's joblib launcher); a killed sweep continues where it stopped (resume=auto).
 LEARNED := policy1,policy1_g,policy2,policy2_g,policy3,policy3_g,policy4_g,policy5_g,policyd_g,policyp_g
+SEEDS   ?= 0,1,2
 train-all: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast progress=false \
-		resume=auto seed=0 policy=$(LEARNED)
-	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast progress=false \
-		resume=auto seed=1,2 policy=policy3_g
-	$(PYTHON) scripts/export_checkpoints.py runs/fast
+		resume=auto seed=$(SEEDS) policy=$(LEARNED) $(R_ARG)
 
-# Paper reproduction from the shipped checkpoints (checkpoints/) and the two baselines.
-EPISODES ?= 500
+# The paper's own recipe (Table I, one env, one update per step, 5000 episodes) for Policy3-G.
+train-paper: $(STAMP)
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py experiment=paper policy=policy3_g seed=0 progress=false \
+		resume=auto $(R_ARG)
+
+# The named step that updates checkpoints/ (slim policies of the finished runs, per reading).
+ship-checkpoints: $(STAMP)
+	$(PYTHON) scripts/ship.py reading=literal
+	$(PYTHON) scripts/ship.py reading=paper_fit
+
+# The paper's tables and figures from checkpoints/ and the baselines, into outputs/.
 reproduce-table3: $(STAMP)
-	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES)
+	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES) $(R_ARG)
 
 reproduce-table4: $(STAMP)
-	$(PYTHON) scripts/reproduce.py table=4 episodes=$(EPISODES)
+	$(PYTHON) scripts/reproduce.py table=4 episodes=$(EPISODES) $(R_ARG)
 
 reproduce-table5: $(STAMP)
-	$(PYTHON) scripts/reproduce.py table=5 episodes=$(EPISODES)
+	$(PYTHON) scripts/reproduce.py table=5 episodes=$(EPISODES) $(R_ARG)
 
 figures: $(STAMP)
-	$(PYTHON) scripts/figures.py
+	$(PYTHON) scripts/figures.py $(R_ARG)
+
+# The named step that updates results/ and figures/: every table and figure, both readings.
+publish: $(STAMP)
+	for r in literal paper_fit; do \
+		for t in 3 4 5; do \
+			$(PYTHON) scripts/reproduce.py table=$$t episodes=$(EPISODES) reading=$$r hydra.run.dir=results/$$r || exit 1; \
+		done; \
+		$(PYTHON) scripts/figures.py reading=$$r hydra.run.dir=figures/$$r || exit 1; \
+	done
 
 tune-baselines: $(STAMP)
-	$(PYTHON) scripts/tune_baselines.py
+	$(PYTHON) scripts/tune_baselines.py $(R_ARG)
 
 benchmark: $(STAMP)
 	$(PYTHON) scripts/benchmark.py
+
+clean:
+	rm -rf outputs multirun .pytest_cache

@@ -41,7 +41,7 @@ def test_each_yaml_composes_against_the_dataclass(name):
 
 def test_training_defaults_match_spec():
     cfg = load_scenario("train")
-    # SPEC 1 table and obstacle decision.
+    # specification section 1 table and obstacle decision.
     assert (cfg.n_uavs, cfg.dt, cfg.max_steps, cfg.tau_v, cfg.v_max) == (5, 0.2, 500, 1.0, 3.0)
     assert (cfg.goal_radius, cfg.collision_distance) == (1.0, 0.5)
     assert (cfg.camera_range, cfg.n_beams, cfg.laser_range, cfg.goal_scale) == (5.0, 36, 10.0, 80.0)
@@ -54,7 +54,7 @@ def test_training_defaults_match_spec():
 
 
 def test_scenario_table():
-    # SPEC 6.
+    # specification section 6.
     assert load_scenario("s1").circles == [] and load_scenario("s1").rectangles == []
     assert load_scenario("s2").n_uavs == 9
     s3 = load_scenario("s3")

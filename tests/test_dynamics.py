@@ -1,4 +1,4 @@
-"""dynamics.py and the env's kinematics: Eq. 1 (semi-implicit Euler), heading rule, Eq. 19-20 (SPEC 1, 3)."""
+"""dynamics.py and the env's kinematics: Eq. 1 (semi-implicit Euler), heading rule, Eq. 19-20 (specification section 1, 3)."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""geometry.py: wrap, circular mean, exact ray casting, distances (SPEC "Units", section 2 "Laser")."""
+"""geometry.py: wrap, circular mean, exact ray casting, distances (specification, "Conventions", section 2 "Laser")."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""instinct.py and its use in the env: Eq. 26-29, the virtual UAV, the switch (SPEC 3)."""
+"""instinct.py and its use in the env: Eq. 26-29, the virtual UAV, the switch (specification section 3)."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""metrics.py on a hand-built trajectory: Eq. 31-36 with the SPEC 5 errata, success vs safe_success."""
+"""metrics.py on a hand-built trajectory: Eq. 31-36 with the specification section 5 errata, success vs safe_success."""
 
 import math
 

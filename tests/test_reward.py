@@ -1,4 +1,4 @@
-"""reward.py and the env's reward: Eq. 21-25 in raw units, Policy4-G's r_c (SPEC 4)."""
+"""reward.py and the env's reward: Eq. 21-25 in raw units, Policy4-G's r_c (specification section 4)."""
 
 import math
 

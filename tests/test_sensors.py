@@ -1,4 +1,4 @@
-"""sensors.py and the env's two views: laser / o_scan, camera / o_cam, o_g, s_c, S4 noise (SPEC 2)."""
+"""sensors.py and the env's two views: laser / o_scan, camera / o_cam, o_g, s_c, S4 noise (specification section 2)."""
 
 import math
 

@@ -25,7 +25,7 @@ def action_to_command(action: torch.Tensor, heading: torch.Tensor) -> torch.Tens
 
 
 def clip_command(command: torch.Tensor, v_max: float) -> torch.Tensor:
-    """Clip a velocity command per axis to ``[-v_max, v_max]`` (SPEC 1)."""
+    """Clip a velocity command per axis to ``[-v_max, v_max]`` (specification section 1)."""
     return command.clamp(-v_max, v_max)
 
 
@@ -47,7 +47,7 @@ def first_order_step(
 
 
 def update_heading(heading: torch.Tensor, velocity: torch.Tensor, threshold: float) -> torch.Tensor:
-    """Heading follows the velocity where the speed exceeds ``threshold``, else is kept (SPEC 1)."""
+    """Heading follows the velocity where the speed exceeds ``threshold``, else is kept (specification section 1)."""
     speed = torch.linalg.vector_norm(velocity, dim=-1)
     return torch.where(speed > threshold, torch.atan2(velocity[..., 1], velocity[..., 0]), heading)
 

@@ -21,7 +21,7 @@ _TWO_PI = 2.0 * math.pi
 
 
 def wrap(angle: torch.Tensor) -> torch.Tensor:
-    """Map angles to ``[-pi, pi)`` (SPEC "Units")."""
+    """Map angles to ``[-pi, pi)`` (specification, "Conventions")."""
     wrapped = torch.remainder(angle + _PI, _TWO_PI) - _PI
     # Angles already in range pass unchanged: the round trip through ``remainder`` costs an
     # ulp, enough to push a UAV exactly on the camera's edge (+-phi_v/2) out of view.
@@ -39,7 +39,7 @@ def relative_angle(vec: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
 
 
 def circular_mean(angles: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
-    """``atan2(sum sin, sum cos)`` along ``dim`` (SPEC section 2, erratum to Eq. 18)."""
+    """``atan2(sum sin, sum cos)`` along ``dim`` (docs/specification.md section 2, erratum to Eq. 18)."""
     return torch.atan2(torch.sin(angles).sum(dim, keepdim=keepdim), torch.cos(angles).sum(dim, keepdim=keepdim))
 
 
@@ -116,7 +116,7 @@ def _ray_rectangle(origin: torch.Tensor, direction: torch.Tensor, rects: torch.T
 def cast_rays(
     origin: torch.Tensor, angles: torch.Tensor, obstacles: Obstacles, max_range: float
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Exact ray casting against circles and rectangles (SPEC section 2, "Laser").
+    """Exact ray casting against circles and rectangles (docs/specification.md section 2, "Laser").
 
     Args:
         origin: ``[B, N, 2]`` ray origins (UAV positions).

@@ -1,4 +1,4 @@
-"""The repulsion instinct (SPEC section 3; paper Eq. 26-29)."""
+"""The repulsion instinct (docs/specification.md section 3; paper Eq. 26-29)."""
 
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                      neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
                      tangential: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """The instinct's switch and command, from what the UAV senses (SPEC 3).
+    """The instinct's switch and command, from what the UAV senses (specification section 3).
 
     The UAV switches to repulsion when ``min(d_uav1, d_scan1) <= d_safe``; the repulsion sums
     over visible UAVs and one virtual UAV at the return point of the shortest beam.

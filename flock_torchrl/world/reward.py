@@ -1,4 +1,4 @@
-"""Per-UAV reward (SPEC section 4; paper Eq. 21-25), in raw units."""
+"""Per-UAV reward (docs/specification.md section 4; paper Eq. 21-25), in raw units."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Onboard sensing (SPEC section 2; paper Eq. 14-18): laser, camera, goal, swarm centre.
+"""Onboard sensing (docs/specification.md section 2; paper Eq. 14-18): laser, camera, goal, swarm centre.
 
 All functions take batched tensors ``[B, N, ...]`` and return the normalised pieces of the
 observation ``[o_g, o_scan, o_cam]`` and the critic state ``[o_g, o_scan, s_cam, s_c]``.
@@ -151,7 +151,7 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
 
 
 def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_range: float) -> torch.Tensor:
-    """``s_c = [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]`` (SPEC 2, Eq. 18 erratum).
+    """``s_c = [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]`` (specification section 2, Eq. 18 erratum).
 
     ``phi_bar`` is the circular mean heading. Returns ``[B, N, 3]``.
     """
@@ -169,7 +169,7 @@ def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_ran
 def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: float, distance_std: float,
                      angle_std: float, max_range: float, generator: torch.Generator | None = None
                      ) -> tuple[torch.Tensor, Neighbours]:
-    """S4 noise on raw measurements, before normalisation (SPEC 2, "Noise").
+    """S4 noise on raw measurements, before normalisation (specification section 2, "Noise").
 
     Beams ``+ scan_std N(0,1)`` clipped to ``[0, max_range]``; neighbour distance
     ``+ distance_std N(0,1)`` clipped at 0; bearing and heading difference

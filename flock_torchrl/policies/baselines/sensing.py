@@ -1,4 +1,4 @@
-"""What a rule-based UAV knows (SPEC section 7): its camera's neighbours and its laser's obstacles.
+"""What a rule-based UAV knows (docs/specification.md section 7): its camera's neighbours and its laser's obstacles.
 
 Both baselines read only onboard, sensor-limited information: the neighbours its camera sees
 (range ``d_v``, field of view ``phi_v``) with their relative velocities, the laser returns,
@@ -42,7 +42,7 @@ class NeighbourView:
 def neighbour_view(position: torch.Tensor, velocity: torch.Tensor, heading: torch.Tensor, camera_range: float,
                    half_fov: float, noise: tuple[float, float] | None = None,
                    generator: torch.Generator | None = None) -> NeighbourView:
-    """The camera's view of the other UAVs plus their relative velocities (SPEC 2 camera, SPEC 7).
+    """The camera's view of the other UAVs plus their relative velocities (specification section 2 camera, specification section 7).
 
     Args:
         position, velocity: ``[B, N, 2]``; heading: ``[B, N]``.

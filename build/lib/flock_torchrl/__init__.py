@@ -1,0 +1,21 @@
+"""flock_torchrl: multi-UAV flocking (Bai et al. 2024) as a TorchRL multi-agent pipeline.
+
+    from flock_torchrl import FlockingEnv, make_policy, make_train_config, train, evaluate, load_policy
+
+The package reads from the bottom up: ``config`` (the schemas and the one composer),
+``world/`` (the simulator and its TorchRL env), ``policies/`` (networks, learners,
+baselines, checkpoints, the registry), ``run/`` (training, evaluation), ``report/``
+(tables, figures, benchmarks); each layer imports only those below it.
+"""
+
+from .config import ConfigError, ScenarioConfig, compose, scenario_config
+from .policies import CheckpointError, PolicyHandle, load_policy, make_policy, resolve
+from .run import EVAL_SEED, EvaluationResult, TrainingInterrupted, evaluate, make_train_config, rollout_episode, train
+from .world import FlockingEnv, SpawnError
+
+__all__ = [
+    "CheckpointError", "ConfigError", "EVAL_SEED", "EvaluationResult", "FlockingEnv", "PolicyHandle", "ScenarioConfig",
+    "SpawnError", "TrainingInterrupted", "compose", "evaluate", "load_policy", "make_policy", "make_train_config",
+    "resolve", "rollout_episode", "scenario_config", "train",
+]
+__version__ = "0.2.0"

@@ -1,0 +1,86 @@
+"""The one way this project writes a file: atomically.
+
+:func:`atomic_write` lets a callback write a temporary file in the target's folder, flushes it
+to disk, then renames it over the target, so a reader (or a crash, a kill, a full disk) sees
+either the old file or the new one, never half of one. Checkpoints, tables, CSVs, configs and
+figures all go through it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[str], None]) -> Path:
+    """Call ``write(tmp_path)``, fsync the file, then ``os.replace`` it onto ``path``.
+
+    The temporary file is removed if anything fails; the target is then untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual mode
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as handle:
+            handle.write(data)
+
+    return atomic_write(path, write)
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    return write_bytes(path, text.encode())
+
+
+def csv_value(value: Any) -> Any:
+    """How a value is written in this project's CSVs: booleans as 0/1, NaN as empty, floats
+    with 6 significant digits."""
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value) if math.isinf(value) else f"{value:.6g}"
+    return "" if value is None else value
+
+
+def csv_text(fieldnames: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(fieldnames), extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: csv_value(v) for k, v in row.items()})
+    return buffer.getvalue()
+
+
+def write_csv(path: str | os.PathLike, fieldnames: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> Path:
+    """Rows of dicts as CSV (missing keys empty, extra keys ignored), written atomically."""
+    return write_text(path, csv_text(fieldnames, rows))
+
+
+def save_torch(obj: Any, path: str | os.PathLike) -> Path:
+    """``torch.save`` atomically."""
+    import torch
+
+    return atomic_write(path, lambda tmp: torch.save(obj, tmp))
+
+
+__all__ = ["atomic_write", "csv_text", "csv_value", "save_torch", "write_bytes", "write_csv", "write_text"]

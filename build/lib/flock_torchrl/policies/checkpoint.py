@@ -1,0 +1,156 @@
+"""Checkpoints: a digest-checked file format, and the shipped policy they load as.
+
+A checkpoint file is ``torch.save`` of a small envelope::
+
+    {"format": FORMAT, "kind": "training" | "policy", "sha256": <hex>, "payload": <uint8 tensor>}
+
+where ``payload`` holds the bytes of ``torch.save(payload_dict)`` and ``sha256`` their digest.
+Both levels are read with ``torch.load(weights_only=True)``: opening a file never runs code.
+A flipped byte, a truncated file, a foreign file or the wrong kind is a
+:class:`CheckpointError` that says which. ``training`` checkpoints hold everything a run
+needs to continue bit for bit (networks, optimisers, replay buffer, counters, env state, RNG
+states); ``policy`` checkpoints are what ``checkpoints/`` ships: the actor, its metadata (the
+policy, the reading and scenario it was trained in), the run's config, counters,
+evaluations and training curve. Every write goes through :func:`flock_torchrl.io.atomic_write`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import pickle
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from ..config import ScenarioConfig
+from ..io import atomic_write
+from .models import ACTION, OBS, make_actor
+
+FORMAT = "flock_torchrl/checkpoint-v2"
+KINDS = ("training", "policy")
+LAST = "last.pt"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint is missing, unreadable, corrupted, of the wrong kind, or does not fit."""
+
+
+def _serialise(obj: Any) -> bytes:
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return buffer.getvalue()
+
+
+def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike, kind: str) -> Path:
+    """Write ``payload`` as a ``kind`` checkpoint, atomically, with its digest."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    data = _serialise(payload)
+    envelope = {"format": FORMAT, "kind": kind, "sha256": hashlib.sha256(data).hexdigest(),
+                "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
+    return atomic_write(path, lambda tmp: torch.save(envelope, tmp))
+
+
+def resolve_path(path: str | os.PathLike) -> Path:
+    """A checkpoint file, or a run folder's ``last.pt``."""
+    path = Path(path)
+    return path / LAST if path.is_dir() else path
+
+
+def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[str, Any]:
+    """Read a checkpoint; raise :class:`CheckpointError` unless it is intact and of ``kind``."""
+    path = resolve_path(path)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint at {path}")
+    try:
+        envelope = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError, KeyError, AttributeError,
+            TypeError, IndexError, UnicodeDecodeError) as exc:
+        raise CheckpointError(f"{path} is not a readable checkpoint (corrupted, truncated or not a torch file): "
+                              f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
+    if not isinstance(envelope, dict) or envelope.get("format") != FORMAT:
+        found = envelope.get("format") if isinstance(envelope, dict) else type(envelope).__name__
+        raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (found {found!r}); "
+                              "it is foreign or from an older version of flock_torchrl")
+    payload_bytes = envelope.get("payload")
+    if not isinstance(payload_bytes, torch.Tensor) or payload_bytes.dtype != torch.uint8:
+        raise CheckpointError(f"{path}: malformed checkpoint (no payload)")
+    data = payload_bytes.numpy().tobytes()
+    if hashlib.sha256(data).hexdigest() != envelope.get("sha256"):
+        raise CheckpointError(f"{path} is corrupted: its payload does not match its SHA-256 digest")
+    if kind is not None and envelope.get("kind") != kind:
+        what = {"training": "a full training state (resume)", "policy": "a slim shipped policy"}
+        raise CheckpointError(f"{path} is {what.get(envelope.get('kind'), repr(envelope.get('kind')))}, but "
+                              f"{what[kind]} is needed here")
+    try:
+        payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+    except Exception as exc:  # digest matched: only a writer bug gets here
+        raise CheckpointError(f"{path}: payload unreadable: {exc}") from exc
+    payload["kind"] = envelope["kind"]
+    return payload
+
+
+def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike) -> Path:
+    """Write the slim, shippable part of a training checkpoint (actor, metadata, config,
+    counters, evaluations, training curve; no optimiser, replay buffer or env state)."""
+    payload = load_checkpoint(checkpoint, kind="training")
+    slim = {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
+            if key in payload}
+    return save_checkpoint(slim, destination, kind="policy")
+
+
+class SharedPolicy(TensorDictModuleBase):
+    """A trained shared actor that runs with any number of UAVs.
+
+    The actor's parameters are shared across UAVs, hence independent of N; the TorchRL
+    multi-agent module is rebuilt (once per N) for the N of the tensordict it receives.
+    ``flock_meta`` carries the policy's id and name, the reading and scenario it was trained
+    in, and the scenario fields it sets (``policy_scenario``).
+    """
+
+    def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device = "cpu") -> None:
+        super().__init__()
+        self.in_keys = [OBS]
+        self.out_keys = [ACTION]
+        self.flock_meta = meta
+        self._actor_state = actor_state
+        self._device = torch.device(device)
+        self._actors = torch.nn.ModuleDict()
+        self.actor_for(int(meta["n_agents"]))
+
+    def actor_for(self, n_agents: int) -> TensorDictModuleBase:
+        key = str(n_agents)
+        if key not in self._actors:
+            from ..world.env import FlockingEnv
+
+            scenario = ScenarioConfig(**{**self.flock_meta["scenario"], "n_uavs": n_agents})
+            env = FlockingEnv(scenario, num_envs=1, device=self._device, seed=None)
+            actor = make_actor(env, stochastic=self.flock_meta["stochastic"], hidden=self.flock_meta["hidden"],
+                               depth=self.flock_meta["depth"])
+            actor.load_state_dict(self._actor_state)
+            self._actors[key] = actor
+        return self._actors[key]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self.actor_for(tensordict.get(OBS).shape[-2])(tensordict)
+
+
+def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu") -> SharedPolicy:
+    """A trained policy from a checkpoint (slim or training, or a run folder), ready for
+    ``env.rollout``. Build its env in its own world::
+
+        policy = load_policy("checkpoints/paper_fit/policy3_g/seed0.pt")
+        env = FlockingEnv("s2", num_envs=8, reading=policy.flock_meta["reading"],
+                          policy_id=policy.flock_meta["policy_id"])
+    """
+    payload = load_checkpoint(path)
+    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device)
+
+
+__all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
+           "resolve_path", "save_checkpoint"]

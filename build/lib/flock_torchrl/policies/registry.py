@@ -1,0 +1,193 @@
+"""What a policy name, a checkpoint or a module means: the one place that answers it.
+
+Training, evaluation, the tables and the figures all ask :func:`resolve`, which turns
+
+* a policy id (``policy3_g``, ``Policy3-G``, ``policy_ma``) into its composed config
+  (``conf/policy/<id>.yaml``): a rule-based controller, or the shipped checkpoints of a
+  learned policy under a reading (``checkpoints/<reading>/<id>/seed<k>.pt``);
+* a checkpoint path into the policy it holds, with the reading it was trained under;
+* a TensorDict module into itself;
+
+into :class:`PolicyHandle` s: the policy's name, the scenario fields it sets, the reading it
+belongs to, the env keys it reads, and how to build its module for a given env.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from ..config import (POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, check_policy, compose_world,
+                      to_object)
+from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, resolve_path
+from .models import adapt_n_agents
+
+# The project's shipped checkpoints: <root>/<reading>/<policy id>/seed<k>.pt
+CHECKPOINTS_DIR = Path("checkpoints")
+
+Module = Callable[[Any], Any]
+
+
+@dataclass
+class PolicyHandle:
+    """A policy before it meets an env.
+
+    Attributes:
+        id: the policy's config id (``policy3_g``), or ``"module"``.
+        name: the paper's name (``Policy3-G``).
+        kind: ``learned``, ``rule`` or ``module``.
+        reading: the reading a checkpoint was trained under (``None``: it fits either).
+        scenario: the scenario fields the policy sets (``fov``, ``instinct``, ...).
+        extras: env keys it reads beyond the observation (``FlockingEnv(extras=...)``).
+        origin: a checkpoint path, ``baseline:<id>`` or ``module``.
+        seed: the training seed of a checkpoint (``None`` otherwise).
+    """
+
+    id: str
+    name: str
+    kind: str
+    reading: str | None
+    scenario: dict[str, Any]
+    extras: tuple[str, ...]
+    origin: str
+    build_for: Callable[[Any], Module] = field(repr=False)
+    seed: int | None = None
+
+    def build(self, env: Any) -> Module:
+        """The TensorDict module that acts in ``env`` (a :class:`~flock_torchrl.FlockingEnv`)."""
+        return self.build_for(env)
+
+    def check_reading(self, reading: str) -> None:
+        """Refuse to act in a world of another reading than the one it was trained under."""
+        if self.reading is not None and reading != self.reading:
+            raise ConfigError("reading", f"{self.origin} was trained under the reading {self.reading!r}; it cannot "
+                                         f"be evaluated under {reading!r} (pass reading={self.reading})")
+
+
+def policy_id(name: str) -> str:
+    """``"Policy3-G"`` / ``"policy3_g"`` / ``"Policy-MA"`` -> the config id ``policy3_g`` / ``policy_ma``."""
+    return re.sub(r"[-\s]+", "_", str(name).strip()).lower()
+
+
+def policy_config(name: str, reading: str | None = None) -> tuple[PolicyConfig, dict[str, Any]]:
+    """A policy's composed config and the scenario fields it sets (``conf/policy/<id>.yaml``)."""
+    pid = policy_id(name)
+    if pid not in available("policy"):
+        raise ConfigError("policy", f"unknown policy {name!r}; available: {', '.join(available('policy'))} "
+                                    "or a checkpoint path")
+    cfg = compose_world("train", reading, pid)
+    policy = check_policy(to_object(cfg.policy, PolicyConfig, "policy"))
+    scenario = {k: cfg.scenario[k] for k in POLICY_SCENARIO_FIELDS}
+    return policy, scenario
+
+
+def shipped_checkpoints(name: str, reading: str, root: str | os.PathLike | None = None) -> list[Path]:
+    """``<root>/<reading>/<id>/seed<k>.pt`` of a policy, ordered by ``k`` (empty if none)."""
+    folder = Path(root if root is not None else CHECKPOINTS_DIR) / reading / policy_id(name)
+
+    def seed_of(p: Path) -> tuple[int, str]:
+        m = re.fullmatch(r"seed(\d+)", p.stem)
+        return (int(m.group(1)) if m else 1 << 30, p.name)
+
+    return sorted(folder.glob("seed*.pt"), key=seed_of)
+
+
+def checkpoint_handle(path: str | os.PathLike, device: str = "cpu") -> PolicyHandle:
+    """The policy a checkpoint holds (slim or training)."""
+    payload = load_checkpoint(path)
+    meta = dict(payload["meta"])
+    module = SharedPolicy(payload["actor"], meta, device=device)
+    return PolicyHandle(
+        id=meta["policy_id"], name=meta["policy"], kind="learned", reading=meta["reading"],
+        scenario=dict(meta["policy_scenario"]), extras=(), origin=str(resolve_path(path)),
+        build_for=lambda env: module, seed=meta.get("seed"))
+
+
+def rule_handle(policy: PolicyConfig, scenario: Mapping[str, Any]) -> PolicyHandle:
+    from .baselines import REQUIRED_EXTRAS, controller_params, make_baseline
+
+    controller_params(policy)  # a bad parameter fails now, naming it
+    return PolicyHandle(
+        id=policy.id, name=policy.name, kind="rule", reading=None, scenario=dict(scenario), extras=REQUIRED_EXTRAS,
+        origin=f"baseline:{policy.id}", build_for=lambda env: make_baseline(policy, env.cfg))
+
+
+def module_handle(module: Any) -> PolicyHandle:
+    meta = dict(getattr(module, "flock_meta", None) or {})
+    name = str(meta.get("policy") or getattr(module, "name", None) or type(module).__name__)
+    return PolicyHandle(
+        id=str(meta.get("policy_id", "module")), name=name, kind="module", reading=meta.get("reading"),
+        scenario=dict(meta.get("policy_scenario") or {}), extras=tuple(meta.get("extras", ())), origin="module",
+        build_for=lambda env: adapt_n_agents(module, env.n_agents))
+
+
+def _is_path(policy: Any) -> bool:
+    if isinstance(policy, os.PathLike):
+        return True
+    text = str(policy)
+    return text.endswith(".pt") or "/" in text or os.sep in text or Path(text).is_file()
+
+
+def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.PathLike | None = None,
+            device: str = "cpu") -> list[PolicyHandle]:
+    """Every policy ``policy`` stands for (one per shipped seed for a learned name).
+
+    Args:
+        policy: a policy id or paper name, a checkpoint file or run folder, a TensorDict
+            module, or a :class:`PolicyHandle`.
+        reading: the world's reading (default: the composed default). A checkpoint of another
+            reading is refused; a learned name looks under ``<checkpoints_dir>/<reading>/``.
+        checkpoints_dir: the shipped checkpoints' root (default ``checkpoints``).
+    """
+    if isinstance(policy, PolicyHandle):
+        handles = [policy]
+    elif callable(policy) and not isinstance(policy, (str, os.PathLike)):
+        handles = [module_handle(policy)]
+    elif _is_path(policy):
+        path = resolve_path(policy)
+        if not path.is_file():
+            raise CheckpointError(f"no checkpoint at {path}")
+        handles = [checkpoint_handle(path, device)]
+    else:
+        config, scenario = policy_config(str(policy), reading)
+        if config.kind == "rule":
+            handles = [rule_handle(config, scenario)]
+        else:
+            reading = reading or compose_world().scenario.reading
+            paths = shipped_checkpoints(config.id, reading, checkpoints_dir)
+            if not paths:
+                root = Path(checkpoints_dir if checkpoints_dir is not None else CHECKPOINTS_DIR)
+                raise CheckpointError(
+                    f"{config.name} is a learned policy and {root / reading / config.id} holds no seed*.pt; train "
+                    f"it (scripts/train.py policy={config.id} reading={reading}) or pass a checkpoint path")
+            handles = [checkpoint_handle(p, device) for p in paths]
+    if reading is not None:
+        for handle in handles:
+            handle.check_reading(reading)
+    return handles
+
+
+def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
+    """A TensorDict module for ``env``: a checkpoint's or module's policy, a rule-based
+    controller, or, for a learned policy's id, a freshly initialised shared actor sized from
+    the env's specs (to script your own training).
+
+    The env should be built in the policy's world: ``FlockingEnv(..., policy_id=<id>)``, and
+    for the rule-based ones with ``extras=("physics", "laser")``.
+    """
+    if isinstance(policy, str) and not _is_path(policy):
+        config, _ = policy_config(policy, env.cfg.reading)
+        if config.kind == "learned":
+            from .models import make_actor
+
+            algo = compose_world("train", env.cfg.reading, config.id).algo
+            return make_actor(env, stochastic=algo.name != "ddpg", hidden=algo.hidden, depth=algo.depth)
+    (handle,) = resolve(policy, env.cfg.reading, device=device)[:1]
+    return handle.build(env)
+
+
+__all__ = ["CHECKPOINTS_DIR", "PolicyHandle", "checkpoint_handle", "make_policy", "module_handle", "policy_config",
+           "policy_id", "resolve", "rule_handle", "shipped_checkpoints"]

@@ -1,0 +1,272 @@
+"""The paper's figures: trajectory plots (Fig. 5-6), training curves (Fig. 4), animations.
+
+Drawing one instant lives in :mod:`flock_torchrl.world.frame`; this module draws whole
+episodes and grids of them, with matplotlib's object API (headless, no global state).
+
+* :func:`plot_trajectory` — one episode like the paper's Fig. 5: every UAV's path, the swarm
+  as triangles at a few times, obstacles (moving ones at those times), goal.
+* :func:`save_animation` — one episode as a GIF.
+* :func:`plot_reward_curves` — training reward per policy, mean and 95 % band every 100
+  episodes (paper Fig. 4), from the training curves the checkpoints carry.
+* :func:`make_figures` — Fig. 4, 5 and 6 of one reading into a folder (``scripts/figures.py``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from ..io import atomic_write
+from ..policies.checkpoint import load_checkpoint
+from ..policies.registry import shipped_checkpoints
+from ..run.evaluation import EVAL_SEED, rollout_episode
+from ..run.trainer import EPISODE_COLUMNS
+from ..world.frame import (DPI, draw_moving, draw_static, draw_uavs, frame_image, image_size, rollout_states,
+                           style_axes, world_extent)
+from .tables import table_entries
+
+
+def _save_figure(fig: Figure, path: str | os.PathLike) -> Path:
+    """``fig.savefig`` atomically (never a half-written file)."""
+    FigureCanvasAgg(fig)
+    path = Path(path)
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=fig.dpi, bbox_inches="tight",
+                                                     format=(path.suffix or ".png")[1:]))
+
+
+def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | os.PathLike | None = None,
+                    title: str | None = None, ax: Any = None, n_snapshots: int = 5,
+                    extent: tuple[float, float, float, float] | None = None) -> Figure:
+    """One episode like the paper's Fig. 5: every UAV's path, the swarm as triangles at
+    ``n_snapshots`` evenly spaced times (labelled ``t = ... s``), static obstacles, moving
+    obstacles at those same times, the goal.
+
+    Args:
+        rollout_td: a rollout TensorDict (``[B, T]`` or ``[T]``, e.g. ``env.rollout(...)`` or
+            :func:`~flock_torchrl.run.evaluation.rollout_episode`), cut at the env's first done.
+        env: the env that produced it (for its config).
+        path: save a PNG there (atomically) when given.
+        ax: draw into this axes (a panel of a grid) instead of a new figure.
+
+    Returns:
+        the figure.
+    """
+    cfg = env.cfg
+    states = rollout_states(rollout_td, env_index)
+    extent = extent or world_extent(cfg, states)
+    if ax is None:
+        fig = Figure(figsize=(5, 5), dpi=DPI)
+        ax = fig.add_subplot(1, 1, 1)
+    else:
+        fig = ax.figure
+    draw_static(ax, cfg, states[0].goal)
+    times = sorted({int(round(t)) for t in np.linspace(0, len(states) - 1, max(2, n_snapshots))})
+    if states[0].moving.size:
+        for i, t in enumerate(times):
+            draw_moving(ax, cfg, states[t].moving, alpha=0.15 + 0.5 * i / max(1, len(times) - 1),
+                        label=f"{t * cfg.dt:.0f}s")
+    tracks = np.stack([s.position for s in states])  # [T+1, N, 2]
+    colors = [f"C{i % 10}" for i in range(tracks.shape[1])]
+    for i in range(tracks.shape[1]):
+        ax.plot(tracks[:, i, 0], tracks[:, i, 1], color=colors[i], lw=0.8, alpha=0.8, zorder=3)
+    length = (extent[1] - extent[0]) / 50
+    for t in times:
+        s = states[t]
+        draw_uavs(ax, s.position, s.heading, length)
+        centre = s.position.mean(0)
+        ax.annotate(f"t={t * cfg.dt:.0f}s", (centre[0], centre[1] + 2.2 * length), ha="center", fontsize=6, zorder=5)
+    style_axes(ax, extent, title)
+    if path is not None:
+        _save_figure(fig, path)
+    return fig
+
+
+def save_animation(rollout_td: Any, env: Any, path: str | os.PathLike, env_index: int = 0, fps: float | None = None,
+                   size: int | tuple[int, int] = 400, stride: int = 1, show_fov: bool = True) -> Path:
+    """One episode of a rollout as a GIF (one frame per ``stride`` steps, fixed extent)."""
+    import imageio.v2 as imageio
+
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, got {stride}")
+    height, width = image_size(size)
+    states = rollout_states(rollout_td, env_index)
+    extent = world_extent(env.cfg, states)
+    idx = list(range(0, len(states), stride))
+    if idx[-1] != len(states) - 1:
+        idx.append(len(states) - 1)
+    frames = [frame_image(env.cfg, states[t], extent, height, width, show_fov, f"t = {t * env.cfg.dt:.1f} s") for t in idx]
+    fps = fps or env.metadata.get("render_fps", 5) * stride
+    return atomic_write(path, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000.0 / fps,
+                                                          loop=0))
+
+
+# ---------------------------------------------------------------------------- grids
+def trajectory_grid(panels: Sequence[tuple[str, Any, Any] | tuple[str, None, str]], ncols: int,
+                    path: str | os.PathLike | None = None, suptitle: str | None = None,
+                    panel_size: float = 3.2) -> Figure:
+    """A grid of :func:`plot_trajectory` panels.
+
+    Args:
+        panels: ``(title, rollout_td, env)`` per panel, or ``(title, None, reason)`` for a panel
+            with nothing to show (the reason is written in it).
+    """
+    import textwrap
+
+    nrows = max(1, math.ceil(len(panels) / ncols))
+    fig = Figure(figsize=(panel_size * ncols, panel_size * nrows), dpi=DPI, layout="constrained")
+    for i, (title, rollout, env) in enumerate(panels):
+        ax = fig.add_subplot(nrows, ncols, i + 1)
+        if rollout is None:
+            ax.text(0.5, 0.5, textwrap.fill(str(env), 30), ha="center", va="center", fontsize=7,
+                    transform=ax.transAxes)
+            ax.set_title(title, fontsize=9)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_box_aspect(1)
+        else:
+            plot_trajectory(rollout, env, ax=ax, title=title)
+    if suptitle:
+        fig.suptitle(suptitle)
+    if path is not None:
+        _save_figure(fig, path)
+    return fig
+
+
+# ---------------------------------------------------------------------------- Fig. 4
+def binned_mean_ci(episodes: np.ndarray, rewards: np.ndarray, bin_size: int = 100,
+                   z: float = 1.959963984540054) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean reward per block of ``bin_size`` episodes and its 95 % normal confidence half-width
+    (``z * std / sqrt(n)``; 0 for a block of one): ``(block end episode, mean, half_width)``."""
+    if episodes.size == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    block = np.floor((episodes - 1).clip(min=0) / bin_size).astype(int)  # episodes 1..100 -> block 0
+    ends, means, halves = [], [], []
+    for b in np.unique(block):
+        r = rewards[block == b]
+        ends.append((b + 1) * bin_size)
+        means.append(r.mean())
+        halves.append(z * r.std(ddof=1) / math.sqrt(r.size) if r.size > 1 else 0.0)
+    return np.asarray(ends, float), np.asarray(means), np.asarray(halves)
+
+
+def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
+                       path: str | os.PathLike | None = None, bin_size: int = 100,
+                       title: str | None = "Training reward (mean and 95 % CI per 100 episodes)") -> Figure:
+    """Paper Fig. 4: per policy, the reward of all its runs pooled in blocks of ``bin_size``
+    episodes, mean line and 95 % band.
+
+    Args:
+        curves: policy name -> ``[(episode, reward), ...]``, one pair of arrays per run (seed).
+    """
+    fig = Figure(figsize=(7, 4.5), dpi=DPI, layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    for i, (name, runs) in enumerate(curves.items()):
+        if not runs:
+            continue
+        episodes = np.concatenate([e for e, _ in runs])
+        rewards = np.concatenate([r for _, r in runs])
+        x, mean, half = binned_mean_ci(episodes, rewards, bin_size)
+        label = f"{name} ({len(runs)} run{'s' if len(runs) > 1 else ''})"
+        ax.plot(x, mean, color=f"C{i % 10}", lw=1.2, label=label, marker="o" if x.size < 3 else None, ms=3)
+        ax.fill_between(x, mean - half, mean + half, color=f"C{i % 10}", alpha=0.2, lw=0)
+    ax.set_xlabel("episode")
+    ax.set_ylabel("episode reward")
+    if title:
+        ax.set_title(title, fontsize=10)
+    if ax.lines:
+        ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    if path is not None:
+        _save_figure(fig, path)
+    return fig
+
+
+def training_curve(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """``(episode, reward)`` of a checkpoint's training curve (one row per finished episode)."""
+    curve = load_checkpoint(path).get("curve")
+    if curve is None or curve.numel() == 0:
+        return np.zeros(0), np.zeros(0)
+    curve = curve.numpy()
+    return curve[:, EPISODE_COLUMNS.index("episode")], curve[:, EPISODE_COLUMNS.index("reward")]
+
+
+# ---------------------------------------------------------------------------- the figures
+FIG6_SCENARIOS = ("s1", "s2", "s3", "s4", "s5")
+FIG6_POLICIES = ("Policy3-G", "PolicyD-G", "PolicyP-G", "Policy-MA", "Policy-OP")
+
+
+def _panel(title: str, name: str, scenario: str, reading: str, seed: int, device: str, checkpoints_dir: Any,
+           log: Callable[[str], None]) -> tuple[str, Any, Any]:
+    try:
+        rollout, env = rollout_episode(name, scenario, reading, seed=seed, device=device,
+                                       checkpoints_dir=checkpoints_dir)
+    except Exception as exc:  # one missing or broken policy must not cost the whole figure
+        log(f"  {title}: skipped: {exc}")
+        return title, None, f"not available: {str(exc).split(';')[0]}"
+    ep = rollout["next", "episode"][0, -1]
+    outcome = "reached" if bool(ep["success"]) else "crashed" if bool(ep["crashed"]) else "timeout"
+    log(f"  {title}: {rollout.shape[-1]} steps, {outcome}")
+    return f"{title} ({outcome})", rollout, env
+
+
+def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] = (4, 5, 6),
+                 checkpoints_dir: str | os.PathLike = "checkpoints", seed: int = EVAL_SEED, device: str = "cpu",
+                 paper_run: str | os.PathLike | None = None, log: Callable[[str], None] = print) -> list[Path]:
+    """Write the paper's figures of one reading into ``out_dir``.
+
+    * ``fig4_rewards.png``: training reward per learned policy, all its shipped seeds pooled
+      (the checkpoints carry their training curves); the paper recipe's run beside them.
+    * ``fig5_trajectories.png``: one seeded training-scenario episode per policy (3 x 4 grid).
+    * ``fig6_generalization.png``: one seeded episode per scenario S1-S5 (rows) and policy
+      (Policy3-G, PolicyD-G, PolicyP-G, Policy-MA, Policy-OP; columns).
+
+    Missing checkpoints are skipped with a message (an empty panel says why).
+    """
+    out = Path(out_dir)
+    written: list[Path] = []
+    names = [e.policy for e in table_entries(3)]
+    if 4 in figs:
+        curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+        for name in names:
+            runs = [training_curve(p) for p in shipped_checkpoints(name, reading, checkpoints_dir)]
+            runs = [r for r in runs if r[0].size]
+            if runs:
+                curves[name] = runs
+        if paper_run is not None and Path(paper_run).is_file():
+            curves["Policy3-G (paper recipe)"] = [training_curve(paper_run)]
+        if curves:
+            for name, runs in curves.items():
+                log(f"Fig. 4: {name}: {len(runs)} run(s), {sum(e.size for e, _ in runs)} episodes")
+            plot_reward_curves(curves, out / "fig4_rewards.png",
+                               title=f"Training reward ({reading}; mean and 95 % CI per 100 episodes)")
+            written.append(out / "fig4_rewards.png")
+        else:
+            log(f"Fig. 4: skipped, no checkpoint under {checkpoints_dir}/{reading}/ carries a training curve")
+    if 5 in figs:
+        log("Fig. 5: one training-scenario episode per policy")
+        panels = [_panel(n, n, "train", reading, seed, device, checkpoints_dir, log) for n in names]
+        if any(p[1] is not None for p in panels):
+            trajectory_grid(panels, ncols=4, path=out / "fig5_trajectories.png",
+                            suptitle=f"Training scenario ({reading}), seed {seed}")
+            written.append(out / "fig5_trajectories.png")
+    if 6 in figs:
+        log("Fig. 6: one episode per scenario and policy")
+        panels = [_panel(f"S{s[-1]} {n}", n, s, reading, seed, device, checkpoints_dir, log)
+                  for s in FIG6_SCENARIOS for n in FIG6_POLICIES]
+        if any(p[1] is not None for p in panels):
+            trajectory_grid(panels, ncols=len(FIG6_POLICIES), path=out / "fig6_generalization.png",
+                            suptitle=f"Generalisation scenarios S1-S5 ({reading}), seed {seed}")
+            written.append(out / "fig6_generalization.png")
+    for path in written:
+        log(f"wrote {path}")
+    return written
+
+
+__all__ = ["FIG6_POLICIES", "FIG6_SCENARIOS", "binned_mean_ci", "make_figures", "plot_reward_curves",
+           "plot_trajectory", "save_animation", "training_curve", "trajectory_grid"]

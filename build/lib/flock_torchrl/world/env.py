@@ -1,0 +1,364 @@
+"""``FlockingEnv``: B independent copies of the world of docs/specification.md as one batched
+TorchRL environment."""
+
+from __future__ import annotations
+
+from typing import Any, Iterable, Mapping, Sequence
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from ..config import ScenarioConfig, check_scenario, scenario_config
+from .geometry import Obstacles
+from .metrics import FLAG_METRICS, METRIC_KEYS, episode_summary, new_accumulator
+from .spawn import check_spawn_feasible, sample_layout
+from .step import advance, sense
+
+ACTION = ("agents", "action")
+# Keys emitted on request (``extras=``): nobody pays for what nobody reads.
+EXTRAS = {
+    "physics": (("agents", "position"), ("agents", "velocity"), ("agents", "heading"), "goal",
+                ("obstacles", "position")),
+    "command": (("agents", "command"), ("agents", "instinct")),
+    "laser": (("agents", "scan"), ("agents", "scan_obstacle")),
+}
+# Per-world state the env owns (plus the "episode" accumulator and the "sensed" cache).
+_STATE_KEYS = ("position", "velocity", "heading", "goal", "moving_position", "moving_velocity", "command", "instinct",
+               "prev_action", "has_prev_action", "terminated", "truncated")
+
+
+class FlockingEnv(EnvBase):
+    """Multi-UAV flocking (Bai et al. 2024) as a batched, torch-native TorchRL environment.
+
+    Per-UAV entries live under the ``"agents"`` group (batch ``[B, N]``): the policy's
+    ``observation`` [17], the critic's ``state`` [20], the ``reward``; ``done``,
+    ``terminated`` and ``truncated`` are shared by the swarm, ``[B, 1]`` at the root, and
+    ``"episode"`` holds the running section 5 metrics of each world (final when ``done``).
+    More keys on request (``extras``): ``"physics"`` (``position``, ``velocity``,
+    ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``), ``"command"``
+    (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
+    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``).
+
+    The worlds' state is one ``TensorDict[B]`` (:attr:`world`): saving is a clone, a subset
+    (:meth:`subset`) an index, a partial reset (``"_reset"``) a masked write of freshly drawn
+    worlds. Stepping a world that is done raises: reset it first (TorchRL's collectors and
+    ``rollout`` do, through ``step_and_maybe_reset``).
+
+    Args:
+        scenario: a name under ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``),
+            composed with ``reading`` and ``policy`` by Hydra; or a complete scenario
+            (:class:`~flock_torchrl.config.ScenarioConfig`, mapping or DictConfig).
+        num_envs: batch size ``B``.
+        device: torch device of every tensor.
+        seed: seed of the env's own generator (spawns, S4 noise, moving obstacles).
+        reading: ``literal`` or ``paper_fit`` (docs/specification.md section 9).
+        policy_id: a policy (``policy3_g`` ...) whose sensing, instinct and reward apply (TorchRL
+            reserves the keyword ``policy``).
+        extras: names from :data:`EXTRAS`, or ``"all"``.
+        **overrides: any scenario field, e.g. ``tau_v=0.5``, ``n_uavs=9``.
+
+    Example:
+        >>> env = FlockingEnv("train", num_envs=4, seed=0, policy_id="policy3_g")
+        >>> td = env.rollout(3)
+        >>> td["agents", "observation"].shape, td["next", "agents", "reward"].shape
+        (torch.Size([4, 3, 5, 17]), torch.Size([4, 3, 5, 1]))
+        >>> td["next", "done"].shape
+        torch.Size([4, 3, 1])
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+    batch_locked = True
+
+    def __init__(self, scenario: str | ScenarioConfig | DictConfig | Mapping[str, Any] = "train", num_envs: int = 1,
+                 device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
+                 policy_id: str | None = None, extras: str | Iterable[str] = (), **overrides: Any) -> None:
+        if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
+            cfg = check_scenario(scenario)
+        else:
+            cfg = scenario_config(scenario, reading=reading, policy=policy_id, **overrides)
+        check_spawn_feasible(cfg)
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        super().__init__(device=torch.device(device), batch_size=torch.Size([num_envs]))
+        self.cfg = cfg
+        self.num_envs = num_envs
+        self.n_agents = cfg.n_uavs
+        self.extras = _extras(extras)
+        self.obs_dim = 2 + 2 * cfg.n_scan + 3 * cfg.n_cam
+        self.state_dim = self.obs_dim + 3
+        self.group_map = {"agents": [f"agent_{i}" for i in range(cfg.n_uavs)]}
+        self._static = Obstacles(
+            torch.tensor(cfg.circles, dtype=torch.float32, device=self.device).reshape(1, -1, 3),
+            torch.tensor(cfg.rectangles, dtype=torch.float32, device=self.device).reshape(1, -1, 4),
+        )
+        self._generator = torch.Generator(device=self.device)
+        self._make_spec()
+        self.world = self._empty_world()
+        self._sensed_once = False
+        self._restored = False
+        if seed is not None:
+            self.set_seed(seed)
+
+    @classmethod
+    def from_config(cls, cfg: ScenarioConfig | DictConfig | Mapping[str, Any], num_envs: int = 1,
+                    device: str | torch.device = "cpu", seed: int | None = 0, **kwargs: Any) -> "FlockingEnv":
+        """Build from a composed scenario (e.g. Hydra's ``cfg.scenario``), exactly as composed."""
+        return cls(cfg, num_envs=num_envs, device=device, seed=seed, **kwargs)
+
+    # ------------------------------------------------------------------ specs
+    def _make_spec(self) -> None:
+        b, n, dev = self.num_envs, self.n_agents, self.device
+        cfg = self.cfg
+
+        def box(*shape, low=-1.0, high=1.0):
+            return Bounded(low=low, high=high, shape=(b, n, *shape), dtype=torch.float32, device=dev)
+
+        def free(*shape, dtype=torch.float32, batch=(b, n)):
+            return Unbounded(shape=(*batch, *shape), dtype=dtype, device=dev)
+
+        def flag(*shape, batch=(b, n)):
+            return Categorical(2, shape=(*batch, *shape), dtype=torch.bool, device=dev)
+
+        agents = {"observation": box(self.obs_dim), "state": box(self.state_dim)}
+        if "physics" in self.extras:
+            agents.update(position=free(2), velocity=free(2), heading=free())
+        if "command" in self.extras:
+            agents.update(command=box(2, low=-cfg.v_max, high=cfg.v_max), instinct=flag())
+        if "laser" in self.extras:
+            agents.update(scan=box(cfg.n_beams, low=0.0, high=cfg.laser_range),
+                          scan_obstacle=Bounded(low=-1, high=max(self._static.count + cfg.n_moving - 1, 0),
+                                                shape=(b, n, cfg.n_beams), dtype=torch.int64, device=dev))
+        episode = Composite(
+            {k: (flag(batch=(b,)) if k in FLAG_METRICS else free(batch=(b,), dtype=torch.int64) if k == "steps"
+                 else free(batch=(b,))) for k in METRIC_KEYS},
+            shape=(b,), device=dev)
+        observation = Composite(agents=Composite(agents, shape=(b, n), device=dev), episode=episode, shape=(b,),
+                                device=dev)
+        if "physics" in self.extras:
+            observation["goal"] = free(2, batch=(b,))
+            if cfg.n_moving:
+                observation["obstacles"] = Composite(position=free(cfg.n_moving, 2, batch=(b,)), shape=(b,),
+                                                     device=dev)
+        self.observation_spec = observation
+        action = box(2) if cfg.action_mode == "policy" else box(2, low=-cfg.v_max, high=cfg.v_max)
+        self.action_spec = Composite(agents=Composite(action=action, shape=(b, n), device=dev), shape=(b,), device=dev)
+        self.reward_spec = Composite(agents=Composite(reward=free(1), shape=(b, n), device=dev), shape=(b,),
+                                     device=dev)
+        self.done_spec = Composite(done=flag(1, batch=(b,)), terminated=flag(1, batch=(b,)),
+                                   truncated=flag(1, batch=(b,)), shape=(b,), device=dev)
+
+    # ------------------------------------------------------------------ state
+    def _empty_world(self) -> TensorDict:
+        b, n, k, dev = self.num_envs, self.n_agents, self.cfg.n_moving, self.device
+
+        def zeros(*shape, dtype=torch.float32):
+            return torch.zeros(*shape, dtype=dtype, device=dev)
+
+        return TensorDict({
+            "position": zeros(b, n, 2), "velocity": zeros(b, n, 2), "heading": zeros(b, n), "goal": zeros(b, 2),
+            "moving_position": zeros(b, k, 2), "moving_velocity": zeros(b, k, 2), "command": zeros(b, n, 2),
+            "instinct": zeros(b, n, dtype=torch.bool), "prev_action": zeros(b, n, 2),
+            "has_prev_action": zeros(b, dtype=torch.bool), "terminated": zeros(b, 1, dtype=torch.bool),
+            "truncated": zeros(b, 1, dtype=torch.bool), "episode": new_accumulator(b, dev),
+        }, batch_size=[b], device=dev)
+
+    def _fresh_worlds(self, count: int) -> TensorDict:
+        """``count`` new episodes: spawned (Eq. 30), at rest, sensed."""
+        layout = sample_layout(self.cfg, count, self._static, self._generator, self.device)
+        n, dev = self.n_agents, self.device
+        state = {
+            "position": layout.position, "velocity": torch.zeros_like(layout.position), "heading": layout.heading,
+            "goal": layout.goal, "moving_position": layout.moving_position,
+            "moving_velocity": layout.moving_velocity, "command": torch.zeros_like(layout.position),
+            "instinct": torch.zeros(count, n, dtype=torch.bool, device=dev),
+            "prev_action": torch.zeros_like(layout.position),
+            "has_prev_action": torch.zeros(count, dtype=torch.bool, device=dev),
+            "terminated": torch.zeros(count, 1, dtype=torch.bool, device=dev),
+            "truncated": torch.zeros(count, 1, dtype=torch.bool, device=dev),
+        }
+        sensed = sense(state, self._static, self.cfg, self._generator)
+        return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
+                          batch_size=[count], device=dev)
+
+    def _output(self) -> TensorDict:
+        world, extras = self.world, self.extras
+        sensed = world["sensed"]
+        agents = {"observation": sensed["observation"], "state": sensed["state"]}
+        if "physics" in extras:
+            agents.update(position=world["position"], velocity=world["velocity"], heading=world["heading"])
+        if "command" in extras:
+            agents.update(command=world["command"], instinct=world["instinct"])
+        if "laser" in extras:
+            agents.update(scan=sensed["scan"], scan_obstacle=sensed["scan_obstacle"])
+        terminated, truncated = world["terminated"], world["truncated"]
+        out = {
+            "agents": TensorDict(agents, batch_size=(self.num_envs, self.n_agents), device=self.device),
+            "episode": episode_summary(world["episode"], self.cfg.collision_distance),
+            "terminated": terminated, "truncated": truncated, "done": terminated | truncated,
+        }
+        if "physics" in extras:
+            out["goal"] = world["goal"]
+            if self.cfg.n_moving:
+                out["obstacles"] = TensorDict({"position": world["moving_position"]}, batch_size=self.batch_size,
+                                              device=self.device)
+        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+
+    # ------------------------------------------------------------------ TorchRL API
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDict:
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(self.num_envs).to(self.device)
+        if self._restored and mask is None:  # a restored state continues its episodes
+            self._restored = False
+            return self._output()
+        self._restored = False
+        if mask is None or bool(mask.all()) or not self._sensed_once:
+            self.world = self._fresh_worlds(self.num_envs)
+            self._sensed_once = True
+        elif bool(mask.any()):
+            index = mask.nonzero().squeeze(-1)
+            fresh = self._fresh_worlds(int(index.numel()))
+            # Out of place: tensors already handed out in earlier outputs stay as they were.
+            self.world = self.world.apply(lambda old, new: old.index_put((index,), new), fresh)
+        return self._output()
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDict:
+        action = self._checked_action(tensordict)
+        world = self.world
+        state = {k: world[k] for k in _STATE_KEYS}
+        state, sensed, episode, reward = advance(state, world["sensed"], world["episode"], action, self._static,
+                                                 self.cfg, self._generator)
+        self.world = TensorDict({**state, "sensed": sensed, "episode": episode}, batch_size=self.batch_size,
+                                device=self.device)
+        out = self._output()
+        out.set(("agents", "reward"), reward[..., None])
+        return out
+
+    def _checked_action(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """The action of every UAV as a float32 tensor on the env's device, clipped to the
+        action box; anything else is a ``ValueError`` naming the key and what was expected."""
+        expected = (self.num_envs, self.n_agents, 2)
+        action = tensordict.get(ACTION, None)
+        if action is None:
+            raise ValueError(f"FlockingEnv.step: no {ACTION} entry in the tensordict; expected a float tensor of "
+                             f"shape {list(expected)}")
+        if tuple(action.shape) != expected:
+            raise ValueError(f"FlockingEnv.step: {ACTION} has shape {list(action.shape)}, expected {list(expected)} "
+                             f"(worlds, UAVs, 2)")
+        if not action.is_floating_point():
+            raise ValueError(f"FlockingEnv.step: {ACTION} has dtype {action.dtype}, expected a floating point "
+                             "tensor (float32; other float types are cast)")
+        action = action.to(self.device, torch.float32)
+        if not bool(torch.isfinite(action).all()):
+            raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
+        done = (self.world["terminated"] | self.world["truncated"]).reshape(-1)
+        if bool(done.any()):
+            worlds = done.nonzero().reshape(-1).tolist()
+            shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
+            raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
+                             "env.step_and_maybe_reset, rollout and collectors do this)")
+        limit = 1.0 if self.cfg.action_mode == "policy" else self.cfg.v_max
+        return action.clamp(-limit, limit)
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is None:
+            seed = int(torch.empty((), dtype=torch.int64).random_().item())
+        self._generator.manual_seed(int(seed))
+
+    # ------------------------------------------------------------------ state API
+    def get_state(self) -> dict:
+        """Everything needed to continue these episodes bit for bit, as plain tensors and dicts."""
+        return {"world": self.world.to_dict(), "generator": self._generator.get_state()}
+
+    def set_state(self, state: Mapping[str, Any]) -> None:
+        """Restore :meth:`get_state`; the next full ``reset()`` returns the restored episodes
+        instead of drawing new ones (so a collector built afterwards continues them)."""
+        world = TensorDict(state["world"], batch_size=self.batch_size, device=self.device)
+        reference = self._fresh_worlds(self.num_envs) if not self._sensed_once else self.world
+        for key, value in reference.items(include_nested=True, leaves_only=True):
+            got = world.get(key, None)
+            if got is None or got.shape != value.shape:
+                raise ValueError(f"env state {key!r}: expected shape {list(value.shape)}, got "
+                                 f"{None if got is None else list(got.shape)}")
+        self.world = world
+        self._generator.set_state(state["generator"])
+        self._sensed_once = True
+        self._restored = True
+
+    def place(self, position: Any, heading: Any, goal: Any, velocity: Any = None,
+              moving_position: Any = None) -> TensorDict:
+        """Start an episode in every world from an exact physical state and return what
+        ``reset`` would: ``position [B, N, 2]``, ``heading [B, N]``, ``goal [B, 2]``,
+        ``velocity [B, N, 2]`` (default 0), ``moving_position [B, K, 2]`` (S5; default: kept).
+        For tests, demos and scripted scenes."""
+        def tensor(x: Any) -> torch.Tensor:
+            return torch.as_tensor(x, dtype=torch.float32, device=self.device)
+
+        if not self._sensed_once:
+            self.world = self._fresh_worlds(self.num_envs)
+            self._sensed_once = True
+        position = tensor(position)
+        state = {k: self.world[k] for k in _STATE_KEYS}
+        state.update(
+            position=position, heading=tensor(heading), goal=tensor(goal),
+            velocity=torch.zeros_like(position) if velocity is None else tensor(velocity),
+            command=torch.zeros_like(position), instinct=torch.zeros_like(state["instinct"]),
+            prev_action=torch.zeros_like(position), has_prev_action=torch.zeros_like(state["has_prev_action"]),
+            terminated=torch.zeros_like(state["terminated"]), truncated=torch.zeros_like(state["truncated"]))
+        if moving_position is not None:
+            state["moving_position"] = tensor(moving_position)
+        for key in ("position", "heading", "goal", "velocity", "moving_position"):
+            if state[key].shape != self.world[key].shape:
+                raise ValueError(f"place: {key} has shape {list(state[key].shape)}, expected "
+                                 f"{list(self.world[key].shape)}")
+        sensed = sense(state, self._static, self.cfg, self._generator)
+        self.world = TensorDict({**state, "episode": new_accumulator(self.num_envs, self.device), "sensed": sensed},
+                                batch_size=self.batch_size, device=self.device)
+        self._restored = False
+        return self._output()
+
+    def current(self) -> TensorDict:
+        """What the last ``reset`` / ``step`` returned for the current state (no reward): the
+        tensordict to put the next action into."""
+        return self._output()
+
+    def subset(self, index: torch.Tensor | Sequence[int]) -> "FlockingEnv":
+        """A new env holding worlds ``index`` of this one, mid-episode (each continues exactly
+        as it would have here, S4 noise draws aside: their shape follows the batch)."""
+        index = torch.as_tensor(index, device=self.device).reshape(-1)
+        small = FlockingEnv(self.cfg, num_envs=int(index.numel()), device=self.device, seed=None,
+                            extras=self.extras)
+        small.world = self.world[index]
+        small._generator.set_state(self._generator.get_state())
+        small._sensed_once = self._sensed_once
+        return small
+
+    def obstacles(self) -> Obstacles:
+        """Current obstacles of every world (static circles, moving circles, rectangles)."""
+        from .step import obstacles_of
+
+        return obstacles_of(self._static, self.world["moving_position"], self.cfg.moving_radius)
+
+    # ------------------------------------------------------------------ rendering
+    def render(self, mode: str = "rgb_array", env_index: int = 0, **kwargs: Any):
+        """An RGB frame ``[H, W, 3]`` (uint8) of world ``env_index``: obstacles, goal, UAVs,
+        headings, fields of view (``kwargs``: :func:`flock_torchrl.world.frame.render_frame`)."""
+        if mode != "rgb_array":
+            raise ValueError(f"render mode {mode!r} is not supported; use 'rgb_array'")
+        from .frame import render_frame
+
+        return render_frame(self, env_index=env_index, **kwargs)
+
+
+def _extras(extras: str | Iterable[str]) -> frozenset[str]:
+    names = set(EXTRAS) if extras == "all" else {extras} if isinstance(extras, str) else set(extras)
+    unknown = sorted(names - set(EXTRAS))
+    if unknown:
+        raise ValueError(f"extras: unknown name(s) {unknown}; known: {sorted(EXTRAS)} or 'all'")
+    return frozenset(names)
+
+
+__all__ = ["ACTION", "EXTRAS", "FlockingEnv"]

@@ -1,0 +1,196 @@
+"""Planar geometry on batched tensors: angles, ray casting, distances to obstacles.
+
+Obstacles come in two batched tensors (see :class:`Obstacles`):
+
+* circles ``[B, C, 3]`` holding ``(cx, cy, radius)``;
+* axis-aligned rectangles ``[B, R, 4]`` holding ``(cx, cy, width_x, height_y)``.
+
+Everything here is a pure function over leading batch dimensions; nothing loops over
+environments, UAVs, beams or obstacles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+def wrap(angle: torch.Tensor) -> torch.Tensor:
+    """Map angles to ``[-pi, pi)`` (specification, "Conventions")."""
+    wrapped = torch.remainder(angle + _PI, _TWO_PI) - _PI
+    # Angles already in range pass unchanged: the round trip through ``remainder`` costs an
+    # ulp, enough to push a UAV exactly on the camera's edge (+-phi_v/2) out of view.
+    return torch.where((angle >= -_PI) & (angle < _PI), angle, wrapped)
+
+
+def bearing(vec: torch.Tensor) -> torch.Tensor:
+    """Angle of ``vec[..., 2]`` with the x axis, ``atan2(y, x)``."""
+    return torch.atan2(vec[..., 1], vec[..., 0])
+
+
+def relative_angle(vec: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+    """``wrap(angle(vec) - heading)``: where ``vec`` points, seen from a UAV facing ``heading``."""
+    return wrap(bearing(vec) - heading)
+
+
+def circular_mean(angles: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
+    """``atan2(sum sin, sum cos)`` along ``dim`` (docs/specification.md section 2, erratum to Eq. 18)."""
+    return torch.atan2(torch.sin(angles).sum(dim, keepdim=keepdim), torch.cos(angles).sum(dim, keepdim=keepdim))
+
+
+@dataclass
+class Obstacles:
+    """Obstacles of a batch of worlds.
+
+    Attributes:
+        circles: ``[B, C, 3]`` centre x, centre y, radius (static then moving ones).
+        rectangles: ``[B, R, 4]`` centre x, centre y, width along x, height along y.
+    """
+
+    circles: torch.Tensor
+    rectangles: torch.Tensor
+
+    @property
+    def count(self) -> int:
+        return self.circles.shape[-2] + self.rectangles.shape[-2]
+
+
+def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Tensor) -> torch.Tensor:
+    """Distance along unit rays to circles.
+
+    Args:
+        origin: ``[B, N, 1, 1, 2]``; direction: ``[B, N, K, 1, 2]`` (unit); circles: ``[B, 1, 1, C, 3]``.
+
+    Returns:
+        ``[B, N, K, C]``: the smallest ``t >= 0`` with ``origin + t direction`` on the circle,
+        0 when the origin is inside (or on) the circle, ``inf`` for a miss.
+    """
+    centre, radius = circles[..., :2], circles[..., 2]
+    f = origin - centre
+    b = (f * direction).sum(-1)
+    c = (f * f).sum(-1) - radius * radius
+    disc = b * b - c
+    t_near = -b - torch.sqrt(disc.clamp_min(0.0))
+    hit = (disc >= 0) & (t_near >= 0)
+    t = torch.where(hit, t_near, torch.full_like(t_near, math.inf))
+    return torch.where(c <= 0, torch.zeros_like(t), t)
+
+
+def _ray_rectangle(origin: torch.Tensor, direction: torch.Tensor, rects: torch.Tensor) -> torch.Tensor:
+    """Distance along unit rays to axis-aligned rectangles (slab test).
+
+    Shapes as in :func:`_ray_circle` with ``rects`` ``[B, 1, 1, R, 4]``. The slabs are solved
+    one axis at a time on ``[B, N, K, R]`` tensors (the ray-invariant parts stay
+    ``[B, N, 1, R]``). A direction component below 1e-12 is replaced by +1e-12: the slab
+    interval then becomes about +-1e13 m, i.e. "all of the line" when the origin lies between
+    the slab's two lines (on them included) and "beyond any range" otherwise, which is the
+    exact parallel-ray answer once beams are capped at their range.
+    """
+    half = rects[..., 2:] / 2
+    lo = (rects[..., :2] - half - origin).squeeze(-3)  # [B, N, R, 2] offsets of the slab lines
+    hi = (rects[..., :2] + half - origin).squeeze(-3)
+    inside = ((lo <= 0) & (hi >= 0)).all(-1).unsqueeze(-2)  # [B, N, 1, R]
+    # Edges are part of the rectangle: an origin exactly on a slab line counts as between the
+    # lines, also for a ray running along that line.
+    lo = torch.where(lo == 0, -1e-6, lo)
+    hi = torch.where(hi == 0, 1e-6, hi)
+    tiny = 1e-12
+    safe = torch.where(direction.abs() < tiny, torch.full_like(direction, tiny), direction)
+    inv = (1.0 / safe).squeeze(-2)  # [B, N, K, 2]
+    lo, hi = lo.unsqueeze(-3), hi.unsqueeze(-3)  # [B, N, 1, R, 2]
+    inv_x, inv_y = inv[..., 0, None], inv[..., 1, None]  # [B, N, K, 1]
+    tx1, tx2 = lo[..., 0] * inv_x, hi[..., 0] * inv_x
+    ty1, ty2 = lo[..., 1] * inv_y, hi[..., 1] * inv_y
+    t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
+    t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
+    hit = (t_far >= t_near) & (t_far >= 0)
+    t = torch.where(hit, t_near.clamp_min(0.0), math.inf)
+    return torch.where(inside, 0.0, t)
+
+
+def cast_rays(
+    origin: torch.Tensor, angles: torch.Tensor, obstacles: Obstacles, max_range: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Exact ray casting against circles and rectangles (docs/specification.md section 2, "Laser").
+
+    Args:
+        origin: ``[B, N, 2]`` ray origins (UAV positions).
+        angles: ``[B, N, K]`` absolute beam headings.
+        obstacles: the worlds' obstacles.
+        max_range: beams are capped at this distance.
+
+    Returns:
+        ``(distance [B, N, K], obstacle [B, N, K])``: ``min(hit, max_range)`` (0 inside an
+        obstacle) and the index of the obstacle hit (circles first, then rectangles), -1 for
+        none within range.
+    """
+    direction = torch.stack((torch.cos(angles), torch.sin(angles)), -1).unsqueeze(-2)  # [B,N,K,1,2]
+    o = origin[:, :, None, None, :]
+    parts = []
+    if obstacles.circles.shape[-2] > 0:
+        parts.append(_ray_circle(o, direction, obstacles.circles[:, None, None]))
+    if obstacles.rectangles.shape[-2] > 0:
+        parts.append(_ray_rectangle(o, direction, obstacles.rectangles[:, None, None]))
+    if not parts:
+        dist = torch.full(angles.shape, max_range, dtype=origin.dtype, device=origin.device)
+        return dist, torch.full(angles.shape, -1, dtype=torch.long, device=origin.device)
+    t = torch.cat(parts, -1)
+    t_min, idx = t.min(-1)
+    in_range = t_min < max_range
+    return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(
+        in_range, idx, torch.full_like(idx, -1)
+    )
+
+
+def distance_to_circles(points: torch.Tensor, circles: torch.Tensor) -> torch.Tensor:
+    """Signed distance from points ``[B, N, 2]`` to circle surfaces ``[B, C, 3]`` -> ``[B, N, C]``."""
+    return torch.linalg.vector_norm(points[:, :, None] - circles[:, None, :, :2], dim=-1) - circles[:, None, :, 2]
+
+
+def distance_to_rectangles(points: torch.Tensor, rects: torch.Tensor) -> torch.Tensor:
+    """Signed distance from points ``[B, N, 2]`` to rectangle surfaces ``[B, R, 4]`` -> ``[B, N, R]``.
+
+    Positive outside (Euclidean distance to the boundary), negative inside.
+    """
+    q = (points[:, :, None] - rects[:, None, :, :2]).abs() - rects[:, None, :, 2:] / 2
+    outside = torch.linalg.vector_norm(q.clamp_min(0.0), dim=-1)
+    inside = q.amax(-1).clamp_max(0.0)
+    return outside + inside
+
+
+def distance_to_obstacles(points: torch.Tensor, obstacles: Obstacles) -> torch.Tensor:
+    """Signed distance to every obstacle surface, ``[B, N, C + R]`` (circles first)."""
+    parts = []
+    if obstacles.circles.shape[-2] > 0:
+        parts.append(distance_to_circles(points, obstacles.circles))
+    if obstacles.rectangles.shape[-2] > 0:
+        parts.append(distance_to_rectangles(points, obstacles.rectangles))
+    if not parts:
+        return points.new_empty(points.shape[:-1] + (0,))
+    return torch.cat(parts, -1)
+
+
+def nearest_obstacle_distance(points: torch.Tensor, obstacles: Obstacles) -> torch.Tensor:
+    """True distance from each point to the nearest obstacle surface, ``[B, N]`` (``inf`` if none)."""
+    d = distance_to_obstacles(points, obstacles)
+    if d.shape[-1] == 0:
+        return torch.full(points.shape[:-1], math.inf, dtype=points.dtype, device=points.device)
+    return d.amin(-1)
+
+
+def pairwise(positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pairwise offsets and distances between UAVs.
+
+    Args:
+        positions: ``[B, N, 2]``.
+
+    Returns:
+        ``(offset [B, N, N, 2], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
+    """
+    offset = positions[:, None, :, :] - positions[:, :, None, :]
+    return offset, torch.linalg.vector_norm(offset, dim=-1)

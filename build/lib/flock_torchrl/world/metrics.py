@@ -1,0 +1,164 @@
+"""Per-episode flocking metrics (docs/specification.md section 5; paper Eq. 31-36).
+
+:data:`METRICS` declares every per-episode quantity once: its key, its kind and how a table
+labels it; the env's spec, the evaluation's statistics, the training log, the tables and the
+fidelity score all read their names from it. The env keeps one accumulator TensorDict of
+batch ``[B]`` and folds every step into it with :func:`update_episode`;
+:func:`episode_summary` turns it into the reported metrics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict
+
+from .geometry import circular_mean, pairwise, wrap
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One per-episode quantity.
+
+    ``kind``: ``rate`` (a success flag reported as a rate with its interval), ``flag`` (other
+    booleans), ``cell`` (a table cell, mean +- std over episodes, paper order), ``count``, ``sum``.
+    """
+
+    key: str
+    kind: str
+    label: str = ""
+    unit: str = ""
+
+
+METRICS = (
+    Metric("success", "rate", "success", ""),
+    Metric("safe_success", "rate", "safe success", ""),
+    Metric("reached", "flag"),
+    Metric("crashed", "flag"),
+    Metric("d_min_obs", "cell", "d_min^obs", "m"),
+    Metric("d_min_uav", "cell", "d_min^uav", "m"),
+    Metric("d_c", "cell", "d_c", "m"),
+    Metric("v_error", "cell", "V_error^c", "m/s"),
+    Metric("phi_error", "cell", "phi_error^c", "rad"),
+    Metric("speed", "cell", "V", "m/s"),
+    Metric("t_goal", "cell", "t^g", "s"),
+    Metric("steps", "count"),
+    Metric("return", "sum"),
+)
+METRIC_KEYS = tuple(m.key for m in METRICS)
+RATE_METRICS = tuple(m.key for m in METRICS if m.kind == "rate")
+FLAG_METRICS = tuple(m.key for m in METRICS if m.kind in ("rate", "flag"))
+# The paper's table columns (Tables III-V), in its order; t_goal over the episodes that reached.
+CELL_METRICS = tuple(m.key for m in METRICS if m.kind == "cell")
+METRIC_BY_KEY = {m.key: m for m in METRICS}
+OBSTACLE_DISTANCE_CAP = 10.0
+
+
+def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: torch.Tensor,
+                    obstacle_distance: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Swarm quantities of one time step, each ``[B]``.
+
+    Args:
+        position, velocity: ``[B, N, 2]``; heading ``[B, N]``;
+        obstacle_distance: ``[B, N]`` signed distance to the nearest obstacle surface (negative inside).
+
+    Returns:
+        ``obs`` (min over UAVs of the obstacle distance), ``uav`` (closest pair, ``inf`` for
+        one UAV), ``d_c`` (Eq. 33 summand), ``v_error`` (Eq. 34 with the 1/N erratum),
+        ``phi_error`` (Eq. 35 with the circular mean), ``speed`` (Eq. 36 summand).
+    """
+    n = position.shape[-2]
+    _, dist = pairwise(position)
+    eye = torch.eye(n, dtype=torch.bool, device=position.device)
+    uav = dist.masked_fill(eye, math.inf).flatten(-2).amin(-1)
+    centre = position.mean(-2, keepdim=True)
+    swarm_velocity = velocity.mean(-2)
+    v_c = torch.linalg.vector_norm(swarm_velocity, dim=-1)
+    v_i = torch.linalg.vector_norm(velocity, dim=-1)
+    phi_bar = circular_mean(heading, -1, keepdim=True)
+    return {
+        # A UAV that overshoots into an obstacle on its crash step is at distance 0, not negative.
+        "obs": obstacle_distance.amin(-1).clamp_min(0.0),
+        "uav": uav,
+        "d_c": torch.linalg.vector_norm(position - centre, dim=-1).mean(-1),
+        "v_error": (v_i - v_c[:, None]).abs().mean(-1),
+        "phi_error": wrap(heading - phi_bar).abs().mean(-1),
+        "speed": v_c,
+    }
+
+
+def new_accumulator(batch: int, device=None, dtype=torch.float32) -> TensorDict:
+    """Empty accumulators for ``batch`` episodes."""
+    def zeros():
+        return torch.zeros(batch, device=device, dtype=dtype)
+
+    return TensorDict(
+        {
+            "steps": torch.zeros(batch, device=device, dtype=torch.long),
+            "sum_d_c": zeros(), "sum_v_error": zeros(), "sum_phi_error": zeros(), "sum_speed": zeros(),
+            "return": zeros(),
+            "d_min_obs": torch.full((batch,), OBSTACLE_DISTANCE_CAP, device=device, dtype=dtype),
+            "d_min_uav": torch.full((batch,), math.inf, device=device, dtype=dtype),
+            "reached": torch.zeros(batch, device=device, dtype=torch.bool),
+            "crashed": torch.zeros(batch, device=device, dtype=torch.bool),
+            "t_goal": torch.full((batch,), math.nan, device=device, dtype=dtype),
+        },
+        batch_size=[batch],
+        device=device,
+    )
+
+
+def update_episode(acc: TensorDict, stats: dict[str, torch.Tensor], reached: torch.Tensor,
+                   crashed: torch.Tensor, dt: float, reward: torch.Tensor | None = None) -> TensorDict:
+    """Fold one step into the accumulators (in place) and return them.
+
+    Args:
+        stats: from :func:`step_statistics`; reached / crashed: ``[B]`` this step's events;
+        reward: ``[B]`` the step's reward averaged over the UAVs (summed into ``return``).
+    """
+    if reward is not None:
+        acc["return"] = acc["return"] + reward
+    steps = acc["steps"] + 1
+    acc["steps"] = steps
+    for name in ("d_c", "v_error", "phi_error", "speed"):
+        acc[f"sum_{name}"] = acc[f"sum_{name}"] + stats[name]
+    acc["d_min_obs"] = torch.minimum(acc["d_min_obs"], stats["obs"].clamp_max(OBSTACLE_DISTANCE_CAP))
+    acc["d_min_uav"] = torch.minimum(acc["d_min_uav"], stats["uav"])
+    first = reached & ~acc["reached"]
+    acc["t_goal"] = torch.where(first, steps.to(acc["t_goal"].dtype) * dt, acc["t_goal"])
+    acc["reached"] = acc["reached"] | reached
+    acc["crashed"] = acc["crashed"] | crashed
+    return acc
+
+
+def episode_summary(acc: TensorDict, collision_distance: float) -> TensorDict:
+    """The section 5 metrics of each episode so far, batch ``[B]``.
+
+    ``success``: goal reached, no crash. ``safe_success``: success and no UAV pair ever closer
+    than ``collision_distance``. Means are over the steps taken (0 before the first step);
+    ``t_goal`` is NaN for an episode that has not reached the goal; ``return`` is the
+    undiscounted episode reward averaged over the UAVs.
+    """
+    steps = acc["steps"].clamp_min(1).to(acc["sum_d_c"].dtype)
+    success = acc["reached"] & ~acc["crashed"]
+    return TensorDict(
+        {
+            "success": success,
+            "safe_success": success & (acc["d_min_uav"] >= collision_distance),
+            "reached": acc["reached"].clone(),
+            "crashed": acc["crashed"].clone(),
+            "d_min_obs": acc["d_min_obs"].clone(),
+            "d_min_uav": acc["d_min_uav"].clone(),
+            "d_c": acc["sum_d_c"] / steps,
+            "v_error": acc["sum_v_error"] / steps,
+            "phi_error": acc["sum_phi_error"] / steps,
+            "speed": acc["sum_speed"] / steps,
+            "t_goal": acc["t_goal"].clone(),
+            "steps": acc["steps"].clone(),
+            "return": acc["return"].clone(),
+        },
+        batch_size=acc.batch_size,
+        device=acc.device,
+    )

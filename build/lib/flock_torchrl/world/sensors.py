@@ -1,0 +1,202 @@
+"""Onboard sensing (docs/specification.md section 2; paper Eq. 14-18): laser, camera, goal, swarm centre.
+
+All functions take batched tensors ``[B, N, ...]`` and return the normalised pieces of the
+observation ``[o_g, o_scan, o_cam]`` and the critic state ``[o_g, o_scan, s_cam, s_c]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from .geometry import Obstacles, cast_rays, circular_mean, pairwise, relative_angle, wrap
+
+
+def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor:
+    """Beam headings relative to the UAV's heading, ``k * 2 pi / n_beams``, ``[n_beams]``."""
+    # In float64, then rounded: float32 arithmetic puts beam 18 of 36 an ulp *below* pi,
+    # so it would wrap to +pi instead of -pi.
+    offsets = torch.arange(n_beams, device=device, dtype=torch.float64) * (2 * math.pi / n_beams)
+    return offsets.to(dtype)
+
+
+def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
+               max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """All laser beams of every UAV.
+
+    Args:
+        position: ``[B, N, 2]``; heading: ``[B, N]``.
+
+    Returns:
+        ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
+        ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
+    """
+    angles = heading[..., None] + beam_offsets(n_beams, position.device, position.dtype)
+    return cast_rays(position, angles, obstacles, max_range)
+
+
+def shortest_beams(beams: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``n`` shortest beams, ascending, ties by beam index.
+
+    Returns:
+        ``(distance [B, N, n], beam index [B, N, n])``.
+    """
+    dist, idx = torch.sort(beams, dim=-1, stable=True)
+    return dist[..., :n], idx[..., :n]
+
+
+def scan_observation(beams: torch.Tensor, n: int, max_range: float) -> torch.Tensor:
+    """``o_scan`` (Eq. 16): ``[d_k / d_max^scan, alpha_k / pi]`` for the ``n`` shortest beams.
+
+    Returns:
+        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``.
+    """
+    dist, idx = shortest_beams(beams, n)
+    alpha = wrap(beam_offsets(beams.shape[-1], beams.device, beams.dtype))[idx]
+    return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
+
+
+def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor,
+                     goal_scale: float) -> torch.Tensor:
+    """``o_g = [min(d_g / d_s, 1), alpha_g / pi]`` (Eq. 14-15, erratum: divide by d_s).
+
+    Args:
+        goal: ``[B, 2]``. Returns ``[B, N, 2]``.
+    """
+    to_goal = goal[:, None, :] - position
+    d = torch.linalg.vector_norm(to_goal, dim=-1)
+    return torch.stack(((d / goal_scale).clamp_max(1.0), relative_angle(to_goal, heading) / math.pi), -1)
+
+
+@dataclass
+class Neighbours:
+    """What the camera measures of every other UAV, ``[B, N, N]`` (row i: seen by UAV i).
+
+    ``distance``, ``bearing`` (relative to i's heading) and ``heading_difference``
+    (``wrap(phi_i - phi_j)``) may carry S4 noise; ``visible`` never does.
+    """
+
+    distance: torch.Tensor
+    bearing: torch.Tensor
+    heading_difference: torch.Tensor
+    visible: torch.Tensor
+
+    def offsets(self, heading: torch.Tensor) -> torch.Tensor:
+        """Measured ``p_j - p_i`` in the world frame, ``[B, N, N, 2]``."""
+        angle = heading[..., None] + self.bearing
+        return self.distance[..., None] * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+
+    def with_visibility(self, visible: torch.Tensor) -> "Neighbours":
+        """The same measurements seen through another camera (e.g. the critic's all-round one)."""
+        return Neighbours(self.distance, self.bearing, self.heading_difference, visible)
+
+    def nearest_distance(self) -> torch.Tensor:
+        """``d_uav1``: distance to the nearest visible UAV, ``inf`` if none, ``[B, N]``."""
+        return torch.where(self.visible, self.distance, torch.full_like(self.distance, math.inf)).amin(-1)
+
+
+def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: float, half_fov: float
+               ) -> torch.Tensor:
+    """Camera visibility: ``|p_j - p_i| < d_v`` and ``|bearing| <= half_fov``, never oneself.
+
+    ``half_fov`` is ``phi_v / 2`` under the reading ``literal`` and ``phi_v`` under ``paper_fit``
+    (:attr:`~flock_torchrl.config.ScenarioConfig.half_fov`, section 9).
+
+    Args:
+        distance, rel_bearing: ``[B, N, N]``. Returns a bool ``[B, N, N]``.
+    """
+    n = distance.shape[-1]
+    eye = torch.eye(n, dtype=torch.bool, device=distance.device)
+    return (distance < camera_range) & (rel_bearing.abs() <= half_fov) & ~eye
+
+
+def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
+                       ) -> Neighbours:
+    """True camera measurements between all UAV pairs (no occlusion, section 2 decision)."""
+    offset, distance = pairwise(position)
+    rel_bearing = relative_angle(offset, heading[..., None])
+    heading_difference = wrap(heading[..., :, None] - heading[..., None, :])
+    return Neighbours(distance, rel_bearing, heading_difference,
+                      visibility(distance, rel_bearing, camera_range, half_fov))
+
+
+def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> torch.Tensor:
+    """``o_cam`` (Eq. 17): the ``n`` closest visible UAVs, ascending by measured distance.
+
+    Each slot ``[min(d / d_v, 1), alpha / pi, wrap(phi_i - phi_j) / pi]``; missing slots
+    ``[1, 0, 0]``.
+
+    Returns:
+        ``[B, N, 3 n]``.
+    """
+    key = torch.where(neighbours.visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
+    order = torch.sort(key, dim=-1, stable=True).indices[..., :n]
+    present = torch.gather(neighbours.visible, -1, order)
+    slots = torch.stack(
+        (
+            (torch.gather(neighbours.distance, -1, order) / camera_range).clamp(0.0, 1.0),
+            torch.gather(neighbours.bearing, -1, order) / math.pi,
+            torch.gather(neighbours.heading_difference, -1, order) / math.pi,
+        ),
+        -1,
+    )
+    missing = slots.new_tensor([1.0, 0.0, 0.0])
+    slots = torch.where(present[..., None], slots, missing)
+    if slots.shape[-2] < n:  # fewer other UAVs than slots
+        pad = missing.expand(*slots.shape[:-2], n - slots.shape[-2], 3)
+        slots = torch.cat((slots, pad), -2)
+    return slots.flatten(-2)
+
+
+def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_range: float) -> torch.Tensor:
+    """``s_c = [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]`` (specification section 2, Eq. 18 erratum).
+
+    ``phi_bar`` is the circular mean heading. Returns ``[B, N, 3]``.
+    """
+    centre = position.mean(-2, keepdim=True)
+    to_centre = centre - position
+    d = torch.linalg.vector_norm(to_centre, dim=-1)
+    phi_bar = circular_mean(heading, -1, keepdim=True)
+    return torch.stack(
+        ((d / camera_range).clamp_max(1.0), relative_angle(to_centre, heading) / math.pi,
+         wrap(heading - phi_bar) / math.pi),
+        -1,
+    )
+
+
+def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: float, distance_std: float,
+                     angle_std: float, max_range: float, generator: torch.Generator | None = None
+                     ) -> tuple[torch.Tensor, Neighbours]:
+    """S4 noise on raw measurements, before normalisation (specification section 2, "Noise").
+
+    Beams ``+ scan_std N(0,1)`` clipped to ``[0, max_range]``; neighbour distance
+    ``+ distance_std N(0,1)`` clipped at 0; bearing and heading difference
+    ``+ angle_std N(0,1)``, wrapped. Visibility is the camera's detection and stays exact.
+    """
+    def noise(like: torch.Tensor) -> torch.Tensor:
+        return torch.randn(like.shape, generator=generator, device=like.device, dtype=like.dtype)
+
+    beams = (beams + scan_std * noise(beams)).clamp(0.0, max_range)
+    noisy = Neighbours(
+        distance=(neighbours.distance + distance_std * noise(neighbours.distance)).clamp_min(0.0),
+        bearing=wrap(neighbours.bearing + angle_std * noise(neighbours.bearing)),
+        heading_difference=wrap(neighbours.heading_difference + angle_std * noise(neighbours.heading_difference)),
+        visible=neighbours.visible,
+    )
+    return beams, noisy
+
+
+def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Shortest beam's length ``d_scan1`` ``[B, N]`` and its return point minus the UAV's position ``[B, N, 2]``."""
+    d, idx = shortest_beams(beams, 1)
+    angle = heading + beam_offsets(beams.shape[-1], beams.device, beams.dtype)[idx[..., 0]]
+    return d[..., 0], d * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+
+
+__all__ = [
+    "Neighbours", "add_sensor_noise", "beam_offsets", "beam_return_offset", "camera_observation",
+    "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "shortest_beams",
+    "swarm_centre_state", "visibility",
+]

@@ -1,0 +1,290 @@
+"""Episode generator: swarm starts, goals (Eq. 30) and moving obstacles (S5), vectorised.
+
+Starts follow docs/specification.md sections 1 and 9: each UAV uniform in a disc around the
+swarm centre (radius :attr:`ScenarioConfig.swarm_spawn_radius`, which grows with the swarm
+as the reading says), at least ``spawn_separation`` from the others and ``spawn_clearance``
+from obstacle surfaces. Rejection sampling redraws only the offending UAVs, for at most
+``spawn_max_tries`` rounds; a world whose swarm is still not placed then draws its starts from
+one of 16 rotated, shifted hexagonal lattices of spacing ``spawn_separation`` (every pair is
+then far enough apart by construction). :func:`check_spawn_feasible` counts, at config time,
+the free points of those lattices for every swarm centre the scenario can draw, so an
+accepted config never fails to spawn mid-run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..config import ConfigError, ScenarioConfig
+from .geometry import Obstacles, distance_to_obstacles, pairwise
+
+# Angular resolution of the config-time check over swarm centres (Eq. 30's chi); the check
+# pads obstacle distances by the discretisation error. The fallback's lattices: fixed
+# rotations and shifts, so that the check can count their free points exactly.
+_CHECK_ANGLES = 360
+_CHECK_GRID = 96
+LATTICES = 16
+# Moving circles (S5) are placed by rejection with up to spawn_max_tries draws each; the
+# config check asks for at least this free fraction of their start box in the worst case,
+# so a failure would need spawn_max_tries misses in a row (probability <= 0.8 ** 200).
+_MIN_MOVING_FREE_FRACTION = 0.2
+
+
+class SpawnError(RuntimeError):
+    """No valid layout exists for a world (only possible for configs the check refused)."""
+
+
+@dataclass
+class Layout:
+    """Episode starts of ``B`` worlds: ``goal [B, 2]``, ``position [B, N, 2]``, ``heading [B, N]``,
+    moving circles ``moving_position [B, K, 2]`` and ``moving_velocity [B, K, 2]``."""
+
+    goal: torch.Tensor
+    position: torch.Tensor
+    heading: torch.Tensor
+    moving_position: torch.Tensor
+    moving_velocity: torch.Tensor
+
+
+def _uniform(shape, generator, device, low=0.0, high=1.0):
+    return low + (high - low) * torch.rand(shape, generator=generator, device=device)
+
+
+def _angle(shape, generator, device):
+    return _uniform(shape, generator, device, -math.pi, math.pi)
+
+
+def _in_disc(shape, radius, generator, device):
+    r = radius * torch.sqrt(_uniform(shape, generator, device))
+    theta = _angle(shape, generator, device)
+    return torch.stack((r * torch.cos(theta), r * torch.sin(theta)), -1)
+
+
+def _first_of_close_pairs(position: torch.Tensor, separation: float) -> torch.Tensor:
+    """``[B, N]``: UAV j is closer than ``separation`` to some UAV i < j."""
+    _, dist = pairwise(position)
+    n = position.shape[-2]
+    earlier = torch.ones(n, n, dtype=torch.bool, device=position.device).tril(-1)  # [j, i]: i < j
+    return ((dist < separation) & earlier).any(-1)
+
+
+def _hex_lattice(radius: float, spacing: float, device=None, dtype=torch.float32) -> torch.Tensor:
+    """Points of a hexagonal lattice of ``spacing`` covering a disc of ``radius`` plus two cells,
+    centred on the origin, ``[P, 2]``."""
+    rows = int(math.ceil((radius + 2 * spacing) / (spacing * math.sqrt(3) / 2)))
+    cols = int(math.ceil((radius + 2 * spacing) / spacing))
+    j = torch.arange(-rows, rows + 1, device=device, dtype=dtype)
+    i = torch.arange(-cols, cols + 1, device=device, dtype=dtype)
+    jj, ii = torch.meshgrid(j, i, indexing="ij")
+    x = spacing * (ii + 0.5 * torch.remainder(jj, 2))
+    y = spacing * (math.sqrt(3) / 2) * jj
+    return torch.stack((x, y), -1).reshape(-1, 2)
+
+
+def lattice_offsets(cfg: ScenarioConfig, device=None, dtype=torch.float32) -> torch.Tensor:
+    """The fallback's candidate starts relative to the swarm centre: :data:`LATTICES` fixed
+    rotations and shifts of a hexagonal lattice of spacing ``spawn_separation`` (times
+    1 + 1e-4, against float32 round-off), each cut to the spawn disc, ``[L, P, 2]`` (NaN pads)."""
+    radius = cfg.swarm_spawn_radius
+    spacing = max(cfg.spawn_separation, 1e-3) * (1 + 1e-4)
+    points = _hex_lattice(radius, spacing, device, torch.float64)
+    k = torch.arange(LATTICES, dtype=torch.float64, device=device)
+    angle = k * (math.pi / 3) / LATTICES
+    # A fixed, well spread set of shifts inside one cell (golden-ratio sequence).
+    shift = torch.stack((torch.remainder(k * 0.6180339887498949, 1.0),
+                         torch.remainder(k * 0.7548776662466927, 1.0)), -1) * spacing
+    shifted = points[None] + shift[:, None]
+    cos, sin = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
+    rotated = torch.stack((cos * shifted[..., 0] - sin * shifted[..., 1],
+                           sin * shifted[..., 0] + cos * shifted[..., 1]), -1)
+    inside = torch.linalg.vector_norm(rotated, dim=-1) <= radius
+    return torch.where(inside[..., None], rotated, torch.full_like(rotated, math.nan)).to(dtype)
+
+
+def _lattice_free(centre: torch.Tensor, offsets: torch.Tensor, static: Obstacles, clearance: float) -> torch.Tensor:
+    """``[M, L, P]``: lattice point ``p`` of lattice ``l`` around centre ``m`` lies in the disc
+    and at least ``clearance`` from every obstacle surface."""
+    m = centre.shape[0]
+    points = centre[:, None, None] + offsets[None]                                     # [M, L, P, 2]
+    free = ~torch.isnan(points[..., 0])
+    if static.count:
+        batch_static = Obstacles(static.circles.to(points.dtype).expand(m, -1, -1),
+                                 static.rectangles.to(points.dtype).expand(m, -1, -1))
+        flat = torch.nan_to_num(points, nan=1e9).reshape(m, -1, 2)
+        clear = distance_to_obstacles(flat, batch_static).amin(-1) >= clearance
+        free &= clear.reshape(free.shape)
+    return free
+
+
+def lattice_starts(centre: torch.Tensor, cfg: ScenarioConfig, static: Obstacles, generator: torch.Generator
+                   ) -> torch.Tensor:
+    """Starts on a hexagonal lattice, for worlds rejection sampling could not place.
+
+    Per world, one of the :func:`lattice_offsets` lattices with at least ``N`` free points is
+    drawn uniformly, then ``N`` of its free points uniformly without replacement; pairs are
+    then ``spawn_separation`` apart by construction. :func:`check_spawn_feasible` has proved
+    that such a lattice exists for every swarm centre the scenario can draw.
+
+    Args:
+        centre: ``[M, 2]`` swarm centres. Returns ``[M, N, 2]``.
+    """
+    m, n, device = centre.shape[0], cfg.n_uavs, centre.device
+    offsets = lattice_offsets(cfg, device)                                             # [L, P, 2]
+    free = _lattice_free(centre, offsets, static, cfg.spawn_clearance)                 # [M, L, P]
+    enough = free.sum(-1) >= n                                                         # [M, L]
+    if not bool(enough.any(-1).all()):
+        raise SpawnError(f"no spawn lattice has {n} free points (a config check_spawn_feasible should refuse)")
+    pick = torch.where(enough, _uniform(enough.shape, generator, device), torch.full_like(enough, -1.0,
+                                                                                           dtype=torch.float32))
+    lattice = pick.argmax(-1)                                                          # [M]
+    rows = torch.arange(m, device=device)
+    free_points = free[rows, lattice]                                                  # [M, P]
+    score = torch.where(free_points, _uniform(free_points.shape, generator, device),
+                        torch.full_like(free_points, 2.0, dtype=torch.float32))
+    chosen = score.argsort(-1)[:, :n]                                                  # [M, N]
+    candidates = centre[:, None] + offsets[lattice]                                    # [M, P, 2]
+    return torch.gather(candidates, 1, chosen[..., None].expand(-1, -1, 2))
+
+
+def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator: torch.Generator,
+                  device: torch.device) -> Layout:
+    """Draw ``batch`` episode starts (sections 1, 6 and 9).
+
+    Args:
+        static: the scenario's static obstacles, batch dimension of size 1.
+    """
+    n = cfg.n_uavs
+    cx, cy = cfg.area_center
+    chi = _angle((batch,), generator, device)
+    unit = torch.stack((torch.cos(chi), torch.sin(chi)), -1)
+    area_center = torch.tensor([cx, cy], device=device)
+    swarm_centre = area_center + cfg.d_env * unit
+    goal = area_center - cfg.d_env * unit  # angle chi + pi
+    static_b = Obstacles(static.circles.expand(batch, -1, -1), static.rectangles.expand(batch, -1, -1))
+    radius = cfg.swarm_spawn_radius
+
+    position = swarm_centre[:, None] + _in_disc((batch, n), radius, generator, device)
+    for _ in range(cfg.spawn_max_tries):
+        bad = _first_of_close_pairs(position, cfg.spawn_separation)
+        if static_b.count:
+            bad |= distance_to_obstacles(position, static_b).amin(-1) < cfg.spawn_clearance
+        if not bad.any():
+            break
+        fresh = swarm_centre[:, None] + _in_disc((batch, n), radius, generator, device)
+        position = torch.where(bad[..., None], fresh, position)
+    else:
+        stuck = bad.any(-1)
+        position = position.clone()
+        position[stuck] = lattice_starts(swarm_centre[stuck], cfg, static, generator)
+    heading = _angle((batch, n), generator, device)
+
+    k = cfg.n_moving
+    moving_position = torch.zeros(batch, k, 2, device=device)
+    moving_velocity = torch.zeros(batch, k, 2, device=device)
+    if k:
+        low, high = cfg.moving_box
+        moving_position = _uniform((batch, k, 2), generator, device, low, high)
+        for _ in range(cfg.spawn_max_tries):
+            bad = _moving_conflicts(moving_position, cfg, static_b, position, goal)
+            if not bad.any():
+                break
+            fresh = _uniform((batch, k, 2), generator, device, low, high)
+            moving_position = torch.where(bad[..., None], fresh, moving_position)
+        else:
+            raise SpawnError(
+                f"could not place {k} moving circles clear of the static obstacles and "
+                f"{cfg.moving_clearance} m from the swarm and goal within {cfg.spawn_max_tries} draws "
+                "(fields n_moving, moving_radius, moving_clearance, moving_box)")
+        direction = _angle((batch, k), generator, device)
+        moving_velocity = cfg.moving_speed * torch.stack((torch.cos(direction), torch.sin(direction)), -1)
+    return Layout(goal, position, heading, moving_position, moving_velocity)
+
+
+def _moving_conflicts(centres: torch.Tensor, cfg: ScenarioConfig, static: Obstacles, uavs: torch.Tensor,
+                      goal: torch.Tensor) -> torch.Tensor:
+    """``[B, K]``: a moving circle overlaps a static obstacle or is too near the swarm or goal."""
+    bad = torch.zeros(centres.shape[:-1], dtype=torch.bool, device=centres.device)
+    if static.count:
+        bad |= distance_to_obstacles(centres, static).amin(-1) < cfg.moving_radius
+    points = torch.cat((uavs, goal[:, None]), 1)  # [B, N+1, 2]
+    gap = torch.linalg.vector_norm(centres[:, :, None] - points[:, None], dim=-1) - cfg.moving_radius
+    return bad | (gap < cfg.moving_clearance).any(-1)
+
+
+# ---------------------------------------------------------------------------- config-time check
+def _feasibility_key(cfg: ScenarioConfig) -> tuple:
+    return (cfg.n_uavs, cfg.swarm_spawn_radius, cfg.spawn_separation, cfg.spawn_clearance, cfg.d_env,
+            tuple(cfg.area_center), tuple(map(tuple, cfg.circles)), tuple(map(tuple, cfg.rectangles)),
+            cfg.n_moving, cfg.moving_radius, cfg.moving_clearance, tuple(cfg.moving_box))
+
+
+def check_spawn_feasible(cfg: ScenarioConfig) -> None:
+    """Refuse (with :class:`ConfigError`) a scenario whose starts cannot always be placed.
+
+    For every swarm centre Eq. 30 can draw (``chi`` on a 360-step grid; obstacle clearances
+    padded by half the grid's chord, so centres between grid points are covered too), one of
+    the fallback's lattices (:func:`lattice_offsets`) must have at least ``n_uavs`` points in
+    the spawn disc and clear of the obstacles. Moving circles (S5) need at least 20 % of their
+    start box free of the swarm's, the goal's and the static obstacles' exclusion zones.
+    """
+    key = _feasibility_key(cfg)
+    if key not in _FEASIBLE:
+        _check(cfg)
+        _FEASIBLE.add(key)
+
+
+_FEASIBLE: set[tuple] = set()
+
+
+def _check(cfg: ScenarioConfig) -> None:
+    n, s = cfg.n_uavs, cfg.spawn_separation
+    static = Obstacles(torch.tensor(cfg.circles, dtype=torch.float64).reshape(1, -1, 3),
+                       torch.tensor(cfg.rectangles, dtype=torch.float64).reshape(1, -1, 4))
+    chi = torch.arange(_CHECK_ANGLES, dtype=torch.float64) * (2 * math.pi / _CHECK_ANGLES)
+    centre = torch.tensor(cfg.area_center, dtype=torch.float64) + cfg.d_env * torch.stack(
+        (torch.cos(chi), torch.sin(chi)), -1)                                         # [A, 2]
+    chord = 2 * cfg.d_env * math.sin(math.pi / _CHECK_ANGLES)  # a centre off the grid is this close to one
+    if n > 1 and s > 0:
+        offsets = lattice_offsets(cfg, dtype=torch.float64)
+        free = _lattice_free(centre, offsets, static, cfg.spawn_clearance + chord / 2)  # [A, L, P]
+        room = free.sum(-1).amax(-1)                                                   # [A]
+        worst = int(room.argmin())
+        if int(room[worst]) < n:
+            where = f" near swarm centre ({centre[worst, 0]:.1f}, {centre[worst, 1]:.1f})" if static.count else ""
+            raise ConfigError(
+                "scenario.n_uavs",
+                f"{n} UAVs at least {s} m apart and {cfg.spawn_clearance} m from obstacles cannot always be placed "
+                f"in a spawn disc of radius {cfg.swarm_spawn_radius:.2f} m{where} (room for {int(room[worst])}); "
+                "raise spawn_radius or d_env, or lower n_uavs / spawn_separation")
+    elif static.count:
+        # One UAV (or no separation): some point of the disc must be clear of the obstacles.
+        free = _lattice_free(centre, torch.zeros(1, 1, 2, dtype=torch.float64), static,
+                             cfg.spawn_clearance + chord / 2)
+        if not bool(free.any(-1).any(-1).all()):
+            raise ConfigError("scenario.spawn_clearance", "the swarm centre can fall inside an obstacle's clearance")
+    if cfg.n_moving:
+        _check_moving(cfg, static, centre, chi, chord)
+
+
+def _check_moving(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, chi: torch.Tensor,
+                  chord: float) -> None:
+    low, high = cfg.moving_box
+    grid = torch.linspace(low, high, _CHECK_GRID, dtype=torch.float64)
+    gx, gy = torch.meshgrid(grid, grid, indexing="ij")
+    points = torch.stack((gx, gy), -1).reshape(1, -1, 2)                              # [1, G, 2]
+    free = torch.ones(points.shape[1], dtype=torch.bool)
+    if static.count:
+        free &= distance_to_obstacles(points, static)[0].amin(-1) >= cfg.moving_radius
+    goal = torch.tensor(cfg.area_center, dtype=torch.float64) - (centre - torch.tensor(cfg.area_center,
+                                                                                       dtype=torch.float64))
+    reach = cfg.moving_radius + cfg.moving_clearance + chord / 2
+    near_swarm = torch.cdist(points[0], centre) <= reach + cfg.swarm_spawn_radius     # [G, A]
+    near_goal = torch.cdist(points[0], goal) <= reach
+    fraction = (free[:, None] & ~near_swarm & ~near_goal).double().mean(0)            # [A]
+    if float(fraction.min()) < _MIN_MOVING_FREE_FRACTION:
+        raise ConfigError("scenario.n_moving", f"moving circles have only {100 * float(fraction.min()):.0f} % of "
+                          f"their start box free in the worst case (need {100 * _MIN_MOVING_FREE_FRACTION:.0f} %); "
+                          "change moving_box, moving_radius or moving_clearance")

@@ -1,0 +1,148 @@
+"""One time step of B worlds as pure tensor functions: sense, act, move, score.
+
+:func:`sense` turns the physical state into everything a step needs (observation, critic
+state, laser, instinct, the distances the reward, termination and metrics read), computing
+the pairwise UAV quantities once. :func:`advance` applies a batch of actions: the instinct
+(Eq. 26-29), kinematics (Eq. 1, 19-20), moving obstacles, sensing of the new state, reward
+(Eq. 21-25), termination and the episode metrics (Eq. 31-36). Neither touches a Python
+object per world or per UAV; the env (:mod:`.env`) owns the state and calls them.
+
+The state is a flat mapping of tensors with leading batch dimension ``B``:
+``position [B, N, 2]``, ``velocity [B, N, 2]``, ``heading [B, N]``, ``goal [B, 2]``,
+``moving_position [B, K, 2]``, ``moving_velocity [B, K, 2]``, ``prev_action [B, N, 2]``,
+``has_prev_action [B]``; the metrics accumulator is a separate mapping (:mod:`.metrics`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import torch
+
+from ..config import ScenarioConfig
+from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
+from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
+from .instinct import instinct_command
+from .metrics import step_statistics, update_episode
+from .reward import total_reward
+from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
+                      scan_observation, swarm_centre_state, visibility)
+
+Tensors = Mapping[str, torch.Tensor]
+
+
+def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius: float) -> Obstacles:
+    """Static circles, then moving circles of ``moving_radius`` at ``moving_position [B, K, 2]``,
+    then rectangles, for every world."""
+    b = moving_position.shape[0]
+    circles = static.circles.expand(b, -1, -1)
+    if moving_position.shape[1]:
+        moving = torch.cat((moving_position, torch.full_like(moving_position[..., :1], moving_radius)), -1)
+        circles = torch.cat((circles, moving), 1)
+    return Obstacles(circles, static.rectangles.expand(b, -1, -1))
+
+
+def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
+          generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+    """Everything a step reads from the physical ``state``, for all worlds at once.
+
+    Returns:
+        ``observation [B, N, 17]`` (section 2, noisy in S4), ``state [B, N, 20]`` (the critic's,
+        never noisy), ``scan [B, N, n_beams]`` (as sensed), ``scan_obstacle`` (index hit, -1
+        none), ``instinct_triggered [B, N]`` and ``instinct_command [B, N, 2]`` (section 3,
+        from the sensed readings), ``d_scan1``, ``d_uav1`` (true), ``d_goal``, ``alpha_goal``,
+        ``obstacle_distance`` (true distance to the nearest surface), all ``[B, N]``.
+    """
+    position, heading, goal = state["position"], state["heading"], state["goal"]
+    obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
+    beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range)
+    true_neighbours = observe_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
+    # The critic's camera sees all round: the same measurements, wider visibility.
+    all_round = true_neighbours.with_visibility(
+        visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi))
+    sensed_beams, neighbours = beams, true_neighbours
+    if cfg.noise:
+        sensed_beams, neighbours = add_sensor_noise(
+            beams, true_neighbours, scan_std=cfg.noise_scan, distance_std=cfg.noise_distance,
+            angle_std=cfg.noise_angle, max_range=cfg.laser_range, generator=generator)
+    o_g = goal_observation(position, heading, goal, cfg.goal_scale)
+    observation = torch.cat(
+        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range),
+         camera_observation(neighbours, cfg.n_cam, cfg.camera_range)), -1)
+    critic_state = torch.cat(
+        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range),
+         camera_observation(all_round, cfg.n_cam, cfg.camera_range),
+         swarm_centre_state(position, heading, cfg.camera_range)), -1)
+    triggered, repulsion_command = instinct_command(
+        position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
+        safe_distance=cfg.safe_distance, tangential=cfg.tangential)
+    to_goal = goal[:, None] - position
+    return {
+        "observation": observation,
+        "state": critic_state,
+        "scan": sensed_beams,
+        "scan_obstacle": beam_obstacle,
+        "instinct_triggered": triggered,
+        "instinct_command": repulsion_command,
+        "d_scan1": beams.amin(-1),
+        "d_uav1": true_neighbours.nearest_distance(),
+        "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
+        "alpha_goal": relative_angle(to_goal, heading),
+        "obstacle_distance": nearest_obstacle_distance(position, obstacles),
+    }
+
+
+def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
+            cfg: ScenarioConfig, generator: torch.Generator | None = None
+            ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]:
+    """One step of every world under ``action [B, N, 2]`` (already checked and clipped).
+
+    Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` also holds
+    the executed ``command``, the ``instinct`` flags and ``terminated`` / ``truncated``
+    ``[B, 1]``. Nothing is modified in place.
+    """
+    if cfg.action_mode == "policy":
+        command = action_to_command(action, state["heading"])
+    else:  # the action is the velocity command (rule-based controllers)
+        command = action
+    if cfg.instinct:
+        use = sensed["instinct_triggered"]
+        command = torch.where(use[..., None], sensed["instinct_command"], command)
+    else:
+        use = torch.zeros_like(sensed["instinct_triggered"])
+    command = clip_command(command, cfg.v_max)
+    position, velocity = first_order_step(state["position"], state["velocity"], command, cfg.dt, cfg.tau_v)
+    heading = update_heading(state["heading"], velocity, cfg.heading_speed_threshold)
+    moving_position, moving_velocity = state["moving_position"], state["moving_velocity"]
+    if cfg.n_moving:
+        moving_position, moving_velocity = reflect_in_box(
+            moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
+    new = {
+        "position": position, "velocity": velocity, "heading": heading, "goal": state["goal"],
+        "moving_position": moving_position, "moving_velocity": moving_velocity,
+        "command": command, "instinct": use, "prev_action": action,
+        "has_prev_action": torch.ones_like(state["has_prev_action"]),
+    }
+    now = sense(new, static, cfg, generator)
+    prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
+    d_collision = now["d_scan1"]
+    if cfg.collision_reward_source == "min_uav_scan":
+        d_collision = torch.minimum(now["d_uav1"], d_collision)
+    centre = position.mean(-2, keepdim=True)
+    reward = total_reward(
+        d_goal=now["d_goal"], d_goal_prev=sensed["d_goal"], alpha_goal=now["alpha_goal"],
+        goal_radius=cfg.goal_radius, d_collision=d_collision,
+        heading_deviation=wrap(heading - circular_mean(heading, -1, keepdim=True)),
+        d_centre=torch.linalg.vector_norm(position - centre, dim=-1),
+        action=action, prev_action=prev_action)
+    reached = (now["d_goal"] < cfg.goal_radius).any(-1)
+    crashed = (now["obstacle_distance"] < cfg.collision_distance).any(-1)
+    stats = step_statistics(position, velocity, heading, now["obstacle_distance"])
+    terminated = reached | crashed
+    if cfg.uav_collision_terminates:
+        terminated = terminated | (stats["uav"] < cfg.collision_distance)
+    episode = update_episode(dict(episode), stats, reached, crashed, cfg.dt, reward.mean(-1))
+    new["terminated"] = terminated[:, None]
+    new["truncated"] = (episode["steps"] >= cfg.max_steps)[:, None] & ~new["terminated"]
+    return new, now, episode, reward
