@@ -466,7 +466,8 @@ class _Training:
         next_eval = _next_multiple(self.counters["frames"], exp.eval_every_frames)
         next_ckpt = _next_multiple(self.counters["frames"], exp.checkpoint_every_frames)
         self.start = time.perf_counter() - self.counters["seconds"]
-        recent: list[tuple[float, bool]] = []
+        # The running means over the last 100 episodes continue from the (cut back) episode log.
+        recent = [(row[2], bool(row[3])) for row in self.episode_log.rows()[-100:]]
         interrupted = 0
         t_last = time.perf_counter()
         try:

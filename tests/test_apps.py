@@ -1,0 +1,116 @@
+"""The command-line apps as a user meets them: sweeps, output folders, what --cfg job shows,
+packaging. Each test is an observation of issue 8 that failed before the Hydra-native
+configuration."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.max_frames=48", "experiment.eval_every_frames=0",
+        "experiment.eval_episodes=2", "progress=false"]
+
+
+def run(script: str, *args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"{script} {args} exited {proc.returncode}:\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
+    # Observation 1: jobs 2-4 "resumed" job 1's run and rewrote its config. Now each job has a
+    # folder named after its overrides, holding the config it trained with.
+    run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
+        cwd=tmp_path)
+    runs = sorted((tmp_path / "runs" / "tiny" / "literal" / "policy3_g").iterdir())
+    assert [r.name for r in runs] == [f"seed6__algo.lr_actor={lr},scenario.max_steps=40,scenario.tau_v={tau}"
+                                      for lr in ("0.0001", "0.001") for tau in ("0.5", "2.0")]
+    for folder in runs:
+        config = yaml.safe_load((folder / "config.yaml").read_text())
+        lr, _, tau = folder.name.split("__")[1].split(",")
+        assert config["algo"]["lr_actor"] == float(lr.split("=")[1])
+        assert config["scenario"]["tau_v"] == float(tau.split("=")[1])
+        assert (folder / "last.pt").is_file() and (folder / "episodes.csv").is_file()
+    # The same sweep again resumes each job's own finished run: nothing changes.
+    before = {f: (f / "last.pt").read_bytes() for f in runs}
+    run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
+        cwd=tmp_path)
+    assert all((f / "last.pt").read_bytes() == data for f, data in before.items())
+
+
+def test_sweep_dir_moves_everything_and_config_is_what_cfg_job_prints(tmp_path):
+    # Observation 2: hydra.sweep.dir moved only .hydra/; observation 3: config.yaml and
+    # --cfg job showed other values than the run used.
+    out = tmp_path / "cluster"
+    run("train.py", "-m", *TINY, "experiment=fast", "experiment.num_envs=4", "experiment.max_frames=64",
+        "experiment.init_random_frames=32", f"hydra.sweep.dir={out}", "logger=csv", cwd=tmp_path)
+    assert not (tmp_path / "runs").exists()
+    (folder,) = list((out / "fast" / "literal" / "policy3_g").iterdir())
+    assert {p.name for p in folder.iterdir()} >= {"config.yaml", "overrides.yaml", "last.pt", "episodes.csv", "logs"}
+    saved = yaml.safe_load((folder / "config.yaml").read_text())
+    assert saved["algo"]["batch_size"] == 1280  # the fast tuning, as trained
+    shown = run("train.py", *TINY, "experiment=fast", "experiment.num_envs=4", "experiment.max_frames=64",
+                "experiment.init_random_frames=32", "logger=csv", "--cfg", "job", "--resolve", cwd=tmp_path).stdout
+    assert yaml.safe_load(shown) == saved
+    # Hyperparameters reach the logger.
+    hparams = (folder / "logs" / "texts" / "hparams0.txt").read_text()
+    assert "algo.batch_size: 1280" in hparams and "scenario.instinct: True" in hparams
+
+
+def test_apps_write_only_their_output_folders(tmp_path):
+    # Observation 2: evaluate.py wrote into the repository and reproduce / figures overwrote the
+    # shipped results/ and figures/. Each app now writes under outputs/ of the working folder.
+    shipped = {p: hashlib.sha256(p.read_bytes()).hexdigest() for d in ("results", "figures", "checkpoints")
+               for p in (ROOT / d).rglob("*") if p.is_file()}
+    run("evaluate.py", "policy=policy_op", "scenario=s1", "episodes=2", cwd=tmp_path)
+    assert (tmp_path / "outputs" / "evaluate" / "literal" / "policy_op" / "s1__episodes=2" / "summary.json").is_file()
+    run("reproduce.py", "table=5", "episodes=2", f"checkpoints_dir={tmp_path / 'none'}", cwd=tmp_path, check=False)
+    assert (tmp_path / "outputs" / "reproduce" / "literal" / "table5.md").is_file()
+    after = {p: hashlib.sha256(p.read_bytes()).hexdigest() for d in ("results", "figures", "checkpoints")
+             for p in (ROOT / d).rglob("*") if p.is_file()}
+    assert after == shipped
+
+
+def test_the_wheel_carries_the_configs(tmp_path):
+    # Observation 4: `pip install .` gave "unknown scenario 'train'; available: []".
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                    str(tmp_path), str(ROOT)], check=True, capture_output=True, timeout=300)
+    (wheel,) = tmp_path.glob("flock_torchrl-*.whl")
+    site = tmp_path / "site"
+    with zipfile.ZipFile(wheel) as archive:
+        names = archive.namelist()
+        archive.extractall(site)
+    assert "flock_torchrl/conf/train.yaml" in names and "flock_torchrl/conf/scenario/s3.yaml" in names
+    assert "flock_torchrl/report/reference/table3.csv" in names
+    code = ("import flock_torchrl.config as c; from flock_torchrl import FlockingEnv; "
+            "env = FlockingEnv('s2', policy_id='policy3_g'); print(c.CONF_DIR, env.n_agents)")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    assert out.strip() == f"{site / 'flock_torchrl' / 'conf'} 9"
+
+
+def test_every_package_folder_is_packaged():
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "flock_torchrl").rglob("__init__.py")}
+    assert found | {"flock_torchrl.conf"} == listed
+
+
+@pytest.mark.parametrize("script", ["train.py", "evaluate.py", "reproduce.py", "figures.py", "tune_baselines.py",
+                                    "benchmark.py", "ship.py"])
+def test_every_script_is_a_hydra_app(script, tmp_path):
+    proc = run(script, "--cfg", "job", cwd=tmp_path)
+    assert proc.stdout.strip() and not (tmp_path / "outputs").exists() and not (tmp_path / "runs").exists()

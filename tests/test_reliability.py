@@ -1,0 +1,256 @@
+"""Runs that survive their users: config errors, signals, concurrent runs, resumes, corrupted
+files, env misuse. Each test is an observation of issue 9 that failed before."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from flock_torchrl import CheckpointError, FlockingEnv
+from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
+from flock_torchrl.run.trainer import make_train_config, train
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.eval_every_frames=0", "experiment.eval_episodes=2",
+        "progress=false", "threads=1"]
+
+
+def start(*args: str, cwd: Path) -> subprocess.Popen:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), *args], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def finish(proc: subprocess.Popen, timeout: float = 300) -> tuple[int, str, str]:
+    out, err = proc.communicate(timeout=timeout)
+    return proc.returncode, out, err
+
+
+def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120) -> None:
+    deadline = time.time() + timeout
+    while not path.exists():
+        if proc.poll() is not None:
+            raise AssertionError(f"the run ended before {path} appeared: {proc.communicate()}")
+        if time.time() > deadline:
+            proc.kill()
+            raise AssertionError(f"{path} did not appear")
+        time.sleep(0.05)
+
+
+def tiny(*overrides: str):
+    return make_train_config("policy3_g", "tiny", [*TINY, *overrides])
+
+
+# ---------------------------------------------------------------------------- 6: config errors
+@pytest.mark.parametrize("bad, key", [
+    ("scenario.n_uavs=abc", "scenario.n_uavs: expected an integer, got 'abc'"),
+    ("seed=abc", "seed: expected an integer"),
+    ("seed=-1", "seed: must be an integer >= 0"),
+    ("device=gpu0", "device: must be cpu, cuda"),
+    ("device=cuda", "device: 'cuda'"),
+    ("algo.lr_actor=-1", "algo.lr_actor: must be a positive"),
+    ("scenario.fov=7", "scenario.fov: must lie in (0, 2 pi]"),
+    ("policy=policy_ma", "policy: policy_ma is rule-based"),
+    ("experiment.workers=3", "experiment.workers: 3 must divide num_envs=4"),
+])
+def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key):
+    if bad == "device=cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    code, out, err = finish(start(*TINY, bad, cwd=tmp_path))
+    assert code == 2
+    assert err.strip().splitlines() == [f"error: {err.strip()[7:]}"] and err.startswith(f"error: {key}")
+    assert list(tmp_path.iterdir()) == []  # no run folder, no .hydra, no log
+
+
+def test_a_sweep_is_checked_whole_before_any_job_runs(tmp_path):
+    code, _, err = finish(start("-m", *TINY, "seed=0,1", "algo.lr_actor=0.001,-1", cwd=tmp_path))
+    assert code == 2 and "algo.lr_actor" in err and list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------- 2: signals
+@pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path, signum, status):
+    budget = ["experiment.max_frames=1600", "experiment.checkpoint_every_frames=64"]
+    folder = tmp_path / "run"
+    proc = start(*TINY, *budget, f"hydra.run.dir={folder}", cwd=tmp_path)
+    wait_for(folder / "last.pt", proc)
+    proc.send_signal(signum)
+    code, out, err = finish(proc)
+    assert code == status, err
+    stopped = load_checkpoint(folder / "last.pt", kind="training")["counters"]["frames"]
+    assert 64 <= stopped < 1600, "the signal did not land mid-run"
+    line = [x for x in err.splitlines() if x.startswith("stopped by")]
+    assert len(line) == 1 and f"resume with: python scripts/train.py resume={folder}" in line[0]
+    assert "Traceback" not in err
+    code, out, err = finish(start(f"resume={folder}", cwd=tmp_path))
+    assert code == 0, err
+    whole = train(tiny(*budget), tmp_path / "whole")
+    a, b = load_checkpoint(whole.checkpoint), load_checkpoint(folder / "last.pt")
+    assert a["counters"]["frames"] == b["counters"]["frames"] == 1600
+    for key, value in a["actor"].items():
+        assert torch.equal(value, b["actor"][key]), key
+    assert (tmp_path / "whole" / "episodes.csv").read_text() == (folder / "episodes.csv").read_text()
+
+
+def test_a_second_ctrl_c_aborts_at_once():
+    from flock_torchrl.run.trainer import _Signals
+
+    with _Signals() as signals:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.01)
+        assert signals.received == signal.SIGINT
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+# ---------------------------------------------------------------------------- 3: concurrent runs
+def test_a_second_process_on_the_same_folder_is_refused(tmp_path):
+    folder = tmp_path / "run"
+    first = start(*TINY, "experiment.max_frames=100000", f"hydra.run.dir={folder}", cwd=tmp_path)
+    wait_for(folder / "last.pt", first)
+    code, _, err = finish(start(*TINY, "experiment.max_frames=100000", "resume=true", f"hydra.run.dir={folder}",
+                                cwd=tmp_path))
+    assert code == 2 and f"is in use by PID {first.pid}" in err
+    first.send_signal(signal.SIGINT)
+    assert finish(first)[0] == 130
+    # The lock died with its holder: the folder can be resumed now.
+    assert finish(start(*TINY, "experiment.max_frames=200", "resume=true", f"hydra.run.dir={folder}",
+                        cwd=tmp_path))[0] == 0
+
+
+# ---------------------------------------------------------------------------- 4 and 1: resume
+def test_resume_with_other_settings_is_refused_and_changes_nothing(tmp_path):
+    result = train(tiny("experiment.max_frames=64"), tmp_path / "run")
+    files = {p: p.read_bytes() for p in (tmp_path / "run").rglob("*") if p.is_file() and p.name != ".lock"}
+    for bad in ("scenario.tau_v=0.5", "scenario.fov=3.0", "algo.lr_actor=0.1"):
+        with pytest.raises(CheckpointError, match=bad.split("=")[0].replace(".", r"\.")):
+            train(tiny("experiment.max_frames=96", "resume=true", bad), result.run_dir)
+    assert {p: p.read_bytes() for p in (tmp_path / "run").rglob("*") if p.is_file() and p.name != ".lock"} == files
+    # Budgets, logging and runtime knobs may change.
+    resumed = train(tiny("experiment.max_frames=96", "resume=true", "logger=none", "progress=true"), result.run_dir)
+    assert resumed.frames == 96
+
+
+def test_a_finished_run_without_its_buffer_resumes_to_a_no_op(tmp_path):
+    cfg = tiny("experiment.max_frames=64", "experiment.keep_buffer_in_checkpoint=false", "resume=auto")
+    first = train(cfg, tmp_path / "run")
+    before = (tmp_path / "run" / "last.pt").read_bytes()
+    again = train(cfg, tmp_path / "run")
+    assert (again.frames, again.updates) == (first.frames, first.updates)
+    assert (tmp_path / "run" / "last.pt").read_bytes() == before
+
+
+def test_the_demo_twice(tmp_path):
+    # Observation 1: `make demo` run twice exited 2 the second time.
+    args = ["experiment=demo", "resume=auto", "experiment.max_frames=512", "experiment.init_random_frames=256",
+            "experiment.checkpoint_every_frames=256", "experiment.eval_episodes=4", "scenario.max_steps=40",
+            "progress=false"]
+    code, first, err = finish(start(*args, cwd=tmp_path))
+    assert code == 0, err
+    code, second, err = finish(start(*args, cwd=tmp_path))
+    assert code == 0, err
+    assert first.splitlines()[-1] == second.splitlines()[-1]  # the same evaluation line
+    assert first.splitlines()[-2].split(" (")[1].split(", ")[:3] == second.splitlines()[-2].split(" (")[1].split(", ")[:3]
+
+
+# ---------------------------------------------------------------------------- 5: corrupted files
+def test_corrupted_foreign_and_wrong_kind_checkpoints_say_which(tmp_path):
+    result = train(tiny("experiment.max_frames=48"), tmp_path / "run")
+    data = bytearray(result.checkpoint.read_bytes())
+    actor = load_checkpoint(result.checkpoint)["actor"]
+    weights = next(v for v in actor.values() if v.numel() > 100).numpy().tobytes()
+    at = bytes(data).find(weights[:64])
+    assert at > 0
+    data[at + 40:at + 56] = bytes(255 - b for b in data[at + 40:at + 56])  # 16 bytes inside a weight tensor
+    flipped = tmp_path / "flipped.pt"
+    flipped.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match="corrupted: its payload does not match its SHA-256"):
+        load_checkpoint(flipped)
+    text = tmp_path / "notes.pt"
+    text.write_text("these are my notes\n")
+    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
+        load_checkpoint(text)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"state_dict": {}}, foreign)
+    with pytest.raises(CheckpointError, match="foreign"):
+        load_checkpoint(foreign)
+    slim = export_policy(result.checkpoint, tmp_path / "slim.pt")
+    with pytest.raises(CheckpointError, match="slim shipped policy"):
+        load_checkpoint(slim, kind="training")
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "last.pt").write_bytes(slim.read_bytes())
+    with pytest.raises(CheckpointError, match="slim shipped policy"):
+        train(tiny("resume=true"), tmp_path / "other")
+    save_checkpoint({"x": 1}, tmp_path / "ok.pt", kind="policy")
+    assert load_checkpoint(tmp_path / "ok.pt")["x"] == 1
+
+
+# ---------------------------------------------------------------------------- 7: env misuse
+@pytest.fixture
+def env():
+    env = FlockingEnv("train", num_envs=2, seed=0, max_steps=2)
+    env.reset()
+    return env
+
+
+def test_env_names_a_wrong_action(env):
+    td = env.current()
+    with pytest.raises(ValueError, match=r"\('agents', 'action'\) has shape \[2, 5, 3\], expected \[2, 5, 2\]"):
+        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 3)))
+    td = env.current()
+    with pytest.raises(ValueError, match=r"no \('agents', 'action'\) entry"):
+        env.step(td)
+    with pytest.raises(ValueError, match="dtype torch.int64, expected a floating point"):
+        env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.int64)))
+    # float64 is cast: the env's state and outputs stay float32.
+    out = env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.float64)))["next"]
+    assert out["agents", "observation"].dtype == torch.float32 and env.world["position"].dtype == torch.float32
+
+
+def test_env_refuses_to_step_a_done_world(env):
+    td = env.current().set(("agents", "action"), torch.zeros(2, 5, 2))
+    td = env.step(td)["next"]
+    td = env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))["next"]
+    assert td["done"].all()  # max_steps = 2
+    with pytest.raises(ValueError, match=r"world\(s\) 0, 1 are done; reset them first"):
+        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))
+    # TorchRL's way continues: step_and_maybe_reset resets the done worlds.
+    td = env.rand_action(env.reset())
+    for _ in range(5):
+        _, td = env.step_and_maybe_reset(env.rand_action(td))
+
+
+# ---------------------------------------------------------------------------- 8: logs after kill -9
+def test_logs_after_kill_and_resume_equal_an_uninterrupted_runs(tmp_path):
+    budget = ["experiment.max_frames=640", "experiment.checkpoint_every_frames=160", "logger=csv"]
+    folder = tmp_path / "run"
+    proc = start(*TINY, *budget, f"hydra.run.dir={folder}", cwd=tmp_path)
+    wait_for(folder / "last.pt", proc)
+    time.sleep(1.0)  # let it log past the checkpoint
+    proc.kill()
+    proc.wait()
+    assert load_checkpoint(folder / "last.pt")["counters"]["frames"] < 640
+    assert finish(start(f"resume={folder}", cwd=tmp_path))[0] == 0
+    whole = tmp_path / "whole"
+    assert finish(start(*TINY, *budget, f"hydra.run.dir={whole}", cwd=tmp_path))[0] == 0
+    logs = sorted(p.relative_to(whole) for p in (whole / "logs" / "scalars").rglob("*.csv"))
+    assert logs
+    for rel in logs:
+        steps_a = [line.split(",")[0] for line in (whole / rel).read_text().splitlines()]
+        steps_b = [line.split(",")[0] for line in (folder / rel).read_text().splitlines()]
+        assert steps_a == steps_b, rel
+        if "perf" not in rel.parts:  # timings differ, everything learned is equal
+            assert (whole / rel).read_text() == (folder / rel).read_text(), rel
+    assert (whole / "episodes.csv").read_text() == (folder / "episodes.csv").read_text()
+    saved = yaml.safe_load((folder / "config.yaml").read_text())
+    assert saved["experiment"]["max_frames"] == 640
