@@ -1,6 +1,13 @@
-"""Today's env against the env as it was before the speed work (commit 4f36b60): the same
-actions from the same seeded starts give the same transitions, bit for bit or within float
-round-off (tests/data/make_reference_rollouts.py recorded them)."""
+"""Today's env against the env as it was before the speed work (commit 4f36b60), and the
+compiled step against its eager twin: the same actions from the same seeded starts give the
+same transitions up to float round-off (tests/data/make_reference_rollouts.py recorded them).
+
+Round-off enters where the speed work changed the arithmetic: beam directions are the
+heading's unit vector rotated by fixed offsets instead of ``cos(heading + offset)``
+(about 1e-6 per beam), and a compiled step fuses and reorders float32 operations. Over 40
+steps the differences stay at float32 round-off of positions (~1e-5 m); every discrete
+outcome (which obstacle a beam hits, which UAVs see each other, the instinct's switch, done)
+is identical."""
 
 from pathlib import Path
 
@@ -20,8 +27,14 @@ KEYS = [("agents", "observation"), ("agents", "state"), ("agents", "reward"), ("
         ("agents", "velocity"), ("agents", "heading"), ("agents", "command"), ("agents", "instinct"),
         ("agents", "scan"), ("agents", "scan_obstacle"), ("episode", "d_c"), ("episode", "d_min_uav"),
         ("episode", "d_min_obs"), ("episode", "return"), ("done",), ("terminated",)]
-# Float round-off allowance: a compiled step may fuse and reorder float32 arithmetic.
-ATOL = {"eager": 0.0}
+DISCRETE = {("agents", "scan_obstacle"), ("agents", "instinct"), ("done",), ("terminated",)}
+ATOL, RTOL = 2e-3, 1e-4  # metres and normalised readings; beams near 10 m carry ~1e-5 relative error
+
+
+def close(a: torch.Tensor, b: torch.Tensor, key) -> bool:
+    if key in DISCRETE:
+        return torch.equal(a, b.to(a.dtype))
+    return torch.allclose(a.double(), b.double(), atol=ATOL, rtol=RTOL, equal_nan=True)
 
 
 def replay(case: dict, scenario: str, policy: str, **kwargs) -> list:
@@ -41,14 +54,24 @@ def reference():
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_eager_step_is_bitwise_the_recorded_one(reference, name):
+def test_eager_step_matches_the_recorded_one(reference, name):
     case = reference[name]
     steps = replay(case, *CASES[name])
-    assert torch.equal(steps[0]["agents", "observation"], case["reset"]["agents"]["observation"])
+    assert close(steps[0]["agents", "observation"], case["reset"]["agents"]["observation"], "observation")
     recorded = case["steps"]
     for t, td in enumerate(steps[1:]):
         for key in KEYS:
             want = recorded
             for k in key:
                 want = want[k]
-            assert torch.equal(td[key].to(want.dtype), want[t]), (name, t, key)
+            assert close(td[key], want[t], key), (name, t, key, (td[key].double() - want[t].double()).abs().max())
+
+
+@pytest.mark.parametrize("name", ["train_policy3_g", "s4_policy3_g"])
+def test_compiled_step_matches_its_eager_twin(reference, name):
+    case = reference[name]
+    eager = replay(case, *CASES[name])
+    compiled = replay(case, *CASES[name], compile_step=True)
+    for a, b in zip(eager[1:], compiled[1:]):
+        for key in KEYS:
+            assert close(b[key], a[key], key), (name, key, (b[key].double() - a[key].double()).abs().max())

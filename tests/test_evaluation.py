@@ -8,10 +8,10 @@ import math
 
 import pytest
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict import TensorDict
 
 from flock_torchrl import CheckpointError, ConfigError, FlockingEnv
-from flock_torchrl.policies.models import adapt_n_agents
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from flock_torchrl.policies.registry import policy_config, policy_id
 from flock_torchrl.run import evaluation as ev
 from flock_torchrl.run.evaluation import EvaluationResult, evaluate, goal_seeking_policy, mean_std, wilson_interval
@@ -141,17 +141,16 @@ def test_policy_resolution_errors_name_the_problem(tmp_path):
 
 
 def test_shared_actor_built_for_five_uavs_runs_nine():
-    from torchrl.modules import MultiAgentMLP
+    from flock_torchrl.policies.models import make_actor
 
-    net = MultiAgentMLP(17, 2, n_agents=5, centralized=False, share_params=True, depth=1, num_cells=8)
-    module = TensorDictModule(net, in_keys=[("agents", "observation")], out_keys=[("agents", "action")])
-    adapted = adapt_n_agents(module, 9)
-    assert adapted is not module and net.n_agents == 5  # the caller's module is left alone
-    obs = torch.randn(3, 9, 17)
-    out = adapted.module(obs)
-    assert out.shape == (3, 9, 2)
-    assert torch.allclose(out[:, :5], net(obs[:, :5]))  # same weights
-    assert adapt_n_agents(module, 5) is module
+    actor = make_actor(FlockingEnv("train", num_envs=1, seed=0), hidden=8, depth=1)
+    nine = FlockingEnv("s2", num_envs=3, seed=0)
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        td = actor(nine.reset())
+        assert td["agents", "action"].shape == (3, 9, 2)
+        # One network for every UAV: UAV 7 acts on its own observation exactly as UAV 0 would.
+        alone = actor(TensorDict({"agents": {"observation": td["agents", "observation"][:, 7:8]}}, batch_size=[3]))
+    assert torch.allclose(alone["agents", "action"][:, 0], td["agents", "action"][:, 7])
 
 
 def test_every_policy_sees_the_same_starts():

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 
@@ -64,11 +65,11 @@ def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Te
     """Distance along unit rays to circles.
 
     Args:
-        origin: ``[B, N, 1, 1, 2]``; direction: ``[B, N, K, 1, 2]`` (unit); circles: ``[B, 1, 1, C, 3]``.
+        origin: ``[P, 1, 2]``; direction: ``[P, K, 2]`` (unit); circles: ``[P, 1, 3]`` (one circle per row).
 
     Returns:
-        ``[B, N, K, C]``: the smallest ``t >= 0`` with ``origin + t direction`` on the circle,
-        0 when the origin is inside (or on) the circle, ``inf`` for a miss.
+        ``[P, K]``: the smallest ``t >= 0`` with ``origin + t direction`` on the circle, 0 when
+        the origin is inside (or on) the circle, ``inf`` for a miss.
     """
     centre, radius = circles[..., :2], circles[..., 2]
     f = origin - centre
@@ -84,28 +85,24 @@ def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Te
 def _ray_rectangle(origin: torch.Tensor, direction: torch.Tensor, rects: torch.Tensor) -> torch.Tensor:
     """Distance along unit rays to axis-aligned rectangles (slab test).
 
-    Shapes as in :func:`_ray_circle` with ``rects`` ``[B, 1, 1, R, 4]``. The slabs are solved
-    one axis at a time on ``[B, N, K, R]`` tensors (the ray-invariant parts stay
-    ``[B, N, 1, R]``). A direction component below 1e-12 is replaced by +1e-12: the slab
-    interval then becomes about +-1e13 m, i.e. "all of the line" when the origin lies between
-    the slab's two lines (on them included) and "beyond any range" otherwise, which is the
-    exact parallel-ray answer once beams are capped at their range.
+    Shapes as in :func:`_ray_circle` with ``rects`` ``[P, 1, 4]``. The slabs are solved one
+    axis at a time. A direction component below 1e-12 is replaced by +1e-12: the slab interval
+    then becomes about +-1e13 m, i.e. "all of the line" when the origin lies between the slab's
+    two lines (on them included) and "beyond any range" otherwise, which is the exact
+    parallel-ray answer once beams are capped at their range.
     """
     half = rects[..., 2:] / 2
-    lo = (rects[..., :2] - half - origin).squeeze(-3)  # [B, N, R, 2] offsets of the slab lines
-    hi = (rects[..., :2] + half - origin).squeeze(-3)
-    inside = ((lo <= 0) & (hi >= 0)).all(-1).unsqueeze(-2)  # [B, N, 1, R]
+    lo = rects[..., :2] - half - origin  # [P, 1, 2] offsets of the slab lines
+    hi = rects[..., :2] + half - origin
+    inside = ((lo <= 0) & (hi >= 0)).all(-1)  # [P, 1]
     # Edges are part of the rectangle: an origin exactly on a slab line counts as between the
     # lines, also for a ray running along that line.
     lo = torch.where(lo == 0, -1e-6, lo)
     hi = torch.where(hi == 0, 1e-6, hi)
     tiny = 1e-12
-    safe = torch.where(direction.abs() < tiny, torch.full_like(direction, tiny), direction)
-    inv = (1.0 / safe).squeeze(-2)  # [B, N, K, 2]
-    lo, hi = lo.unsqueeze(-3), hi.unsqueeze(-3)  # [B, N, 1, R, 2]
-    inv_x, inv_y = inv[..., 0, None], inv[..., 1, None]  # [B, N, K, 1]
-    tx1, tx2 = lo[..., 0] * inv_x, hi[..., 0] * inv_x
-    ty1, ty2 = lo[..., 1] * inv_y, hi[..., 1] * inv_y
+    inv = 1.0 / torch.where(direction.abs() < tiny, torch.full_like(direction, tiny), direction)  # [P, K, 2]
+    tx1, tx2 = lo[..., 0] * inv[..., 0], hi[..., 0] * inv[..., 0]
+    ty1, ty2 = lo[..., 1] * inv[..., 1], hi[..., 1] * inv[..., 1]
     t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
     t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
     hit = (t_far >= t_near) & (t_far >= 0)
@@ -129,18 +126,38 @@ def cast_rays(
         obstacle) and the index of the obstacle hit (circles first, then rectangles), -1 for
         none within range.
     """
-    direction = torch.stack((torch.cos(angles), torch.sin(angles)), -1).unsqueeze(-2)  # [B,N,K,1,2]
-    o = origin[:, :, None, None, :]
-    parts = []
-    if obstacles.circles.shape[-2] > 0:
-        parts.append(_ray_circle(o, direction, obstacles.circles[:, None, None]))
-    if obstacles.rectangles.shape[-2] > 0:
-        parts.append(_ray_rectangle(o, direction, obstacles.rectangles[:, None, None]))
-    if not parts:
-        dist = torch.full(angles.shape, max_range, dtype=origin.dtype, device=origin.device)
-        return dist, torch.full(angles.shape, -1, dtype=torch.long, device=origin.device)
-    t = torch.cat(parts, -1)
-    t_min, idx = t.min(-1)
+    direction = torch.stack((torch.cos(angles), torch.sin(angles)), -1)
+    return cast_rays_along(origin, lambda b, n: direction[b, n], obstacles, max_range, angles.shape[-1])
+
+
+def cast_rays_along(origin: torch.Tensor, directions: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+                    obstacles: Obstacles, max_range: float, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`cast_rays` for ``k`` rays per origin whose unit directions ``directions(b, n)``
+    gives for the origins ``origin[b, n]`` (``[P, k, 2]``).
+
+    Only the (UAV, obstacle) pairs whose surface lies within ``max_range`` are cast: a beam's
+    hit can be no closer than the surface, so the others cannot return a hit in range. The
+    pairs are gathered into one batch per obstacle shape, so the work follows how many
+    obstacles are near, not B x N x (all obstacles).
+    """
+    b, n = origin.shape[:2]
+    shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
+              (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
+    count = obstacles.count
+    t = origin.new_full((b, n, count, k), math.inf)
+    offset = 0
+    for tensors, cast, distance in shapes:  # two obstacle shapes, not a loop over worlds or UAVs
+        m = tensors.shape[-2]
+        if m:
+            near = distance(origin, tensors) < max_range                     # [B, N, M]
+            bi, ni, mi = near.nonzero(as_tuple=True)
+            if bi.numel():
+                t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions(bi, ni), tensors[bi, mi, None])
+        offset += m
+    if count == 0:
+        return (origin.new_full((b, n, k), max_range),
+                torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
+    t_min, idx = t.min(-2)
     in_range = t_min < max_range
     return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(
         in_range, idx, torch.full_like(idx, -1)

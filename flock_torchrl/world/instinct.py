@@ -44,7 +44,8 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
 
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                      neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
-                     tangential: bool) -> tuple[torch.Tensor, torch.Tensor]:
+                     tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """The instinct's switch and command, from what the UAV senses (specification section 3).
 
     The UAV switches to repulsion when ``min(d_uav1, d_scan1) <= d_safe``; the repulsion sums
@@ -53,11 +54,12 @@ def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.
     Args:
         position: ``[B, N, 2]``; heading ``[B, N]``; goal ``[B, 2]``; beams ``[B, N, K]`` (as sensed);
         neighbours: camera measurements (as sensed).
+        shortest: ``shortest_beams(beams, k)`` if already known.
 
     Returns:
         ``(triggered [B, N] bool, command [B, N, 2])`` (the command is not yet clipped).
     """
-    d_scan1, wall_offset = beam_return_offset(beams, heading)
+    d_scan1, wall_offset = beam_return_offset(beams, heading, shortest)
     offsets = torch.cat((neighbours.offsets(heading), wall_offset[..., None, :]), -2)
     active = torch.cat((neighbours.visible, torch.ones_like(neighbours.visible[..., :1])), -1)
     command = repulsion(offsets, active, goal[:, None, :] - position, gain, r0, tangential)

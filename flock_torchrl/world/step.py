@@ -27,7 +27,7 @@ from .instinct import instinct_command
 from .metrics import step_statistics, update_episode
 from .reward import total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
-                      scan_observation, swarm_centre_state, visibility)
+                      scan_observation, shortest_beams, swarm_centre_state, visibility)
 
 Tensors = Mapping[str, torch.Tensor]
 
@@ -66,17 +66,21 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         sensed_beams, neighbours = add_sensor_noise(
             beams, true_neighbours, scan_std=cfg.noise_scan, distance_std=cfg.noise_distance,
             angle_std=cfg.noise_angle, max_range=cfg.laser_range, generator=generator)
+    # The shortest beams, selected once: the observation, the instinct and (without noise) the
+    # critic's state all read them.
+    sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
+    true_shortest = shortest_beams(beams, max(cfg.n_scan, 1)) if cfg.noise else sensed_shortest
     o_g = goal_observation(position, heading, goal, cfg.goal_scale)
     observation = torch.cat(
-        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range),
+        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest),
          camera_observation(neighbours, cfg.n_cam, cfg.camera_range)), -1)
     critic_state = torch.cat(
-        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range),
+        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest),
          camera_observation(all_round, cfg.n_cam, cfg.camera_range),
          swarm_centre_state(position, heading, cfg.camera_range)), -1)
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
-        safe_distance=cfg.safe_distance, tangential=cfg.tangential)
+        safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest)
     to_goal = goal[:, None] - position
     return {
         "observation": observation,
@@ -85,7 +89,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "scan_obstacle": beam_obstacle,
         "instinct_triggered": triggered,
         "instinct_command": repulsion_command,
-        "d_scan1": beams.amin(-1),
+        "d_scan1": true_shortest[0][..., 0],
         "d_uav1": true_neighbours.nearest_distance(),
         "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
         "alpha_goal": relative_angle(to_goal, heading),

@@ -105,39 +105,25 @@ def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike)
 
 
 class SharedPolicy(TensorDictModuleBase):
-    """A trained shared actor that runs with any number of UAVs.
+    """A trained shared actor, ready for ``env.rollout`` with any number of UAVs.
 
-    The actor's parameters are shared across UAVs, hence independent of N; the TorchRL
-    multi-agent module is rebuilt (once per N) for the N of the tensordict it receives.
     ``flock_meta`` carries the policy's id and name, the reading and scenario it was trained
     in, and the scenario fields it sets (``policy_scenario``).
     """
 
     def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device = "cpu") -> None:
         super().__init__()
+        from ..world.env import FlockingEnv
+
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
         self.flock_meta = meta
-        self._actor_state = actor_state
-        self._device = torch.device(device)
-        self._actors = torch.nn.ModuleDict()
-        self.actor_for(int(meta["n_agents"]))
-
-    def actor_for(self, n_agents: int) -> TensorDictModuleBase:
-        key = str(n_agents)
-        if key not in self._actors:
-            from ..world.env import FlockingEnv
-
-            scenario = ScenarioConfig(**{**self.flock_meta["scenario"], "n_uavs": n_agents})
-            env = FlockingEnv(scenario, num_envs=1, device=self._device, seed=None)
-            actor = make_actor(env, stochastic=self.flock_meta["stochastic"], hidden=self.flock_meta["hidden"],
-                               depth=self.flock_meta["depth"])
-            actor.load_state_dict(self._actor_state)
-            self._actors[key] = actor
-        return self._actors[key]
+        env = FlockingEnv(ScenarioConfig(**meta["scenario"]), num_envs=1, device=device, seed=None)
+        self.actor = make_actor(env, stochastic=meta["stochastic"], hidden=meta["hidden"], depth=meta["depth"])
+        self.actor.load_state_dict(actor_state)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return self.actor_for(tensordict.get(OBS).shape[-2])(tensordict)
+        return self.actor(tensordict)
 
 
 def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu") -> SharedPolicy:

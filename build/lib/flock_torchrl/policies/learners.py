@@ -1,14 +1,20 @@
 """The three learners, wired from TorchRL parts only (no hand-written losses).
 
-Each learner owns its networks, TorchRL loss module, optimisers and target updater, and
+Each learner owns its networks, TorchRL loss module, optimiser and target updater, and
 exposes the same small surface to the trainer:
 
 * ``collector_policy`` — the module the collector runs (with exploration);
 * ``actor`` — the policy to evaluate and ship (deterministic under
   ``ExplorationType.DETERMINISTIC``);
 * ``off_policy`` — whether transitions go through a replay buffer;
-* ``update(batch) -> dict`` — one gradient step (off-policy) or one PPO pass (on-policy);
+* ``update(batch) -> dict[str, Tensor]`` — one gradient step (off-policy) or one PPO pass
+  (on-policy); the statistics stay tensors, so an update never waits on a ``.item()``;
 * ``state_dict() / load_state_dict()`` — everything a checkpoint needs.
+
+Speed: one Adam per learner with a parameter group per network (each its own learning rate,
+as Table I), fused where the device supports it (one kernel for every parameter); with
+``compile=True`` the loss module's forward (and, through AOTAutograd, its backward) is
+``torch.compile`` d. ``compile=False`` is the eager twin: the same loss, module and optimiser.
 """
 
 from __future__ import annotations
@@ -23,8 +29,8 @@ from tensordict.nn import TensorDictSequential
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import ClipPPOLoss, DDPGLoss, SACLoss, SoftUpdate, ValueEstimators
 
-from .models import ACTION, LOG_PROB, make_actor, make_qvalue, make_value
 from ..config import DDPGConfig, PPOConfig, SACConfig
+from .models import ACTION, LOG_PROB, make_actor, make_qvalue, make_value
 
 # PPO normalises advantages over all UAVs of the batch on purpose (one shared policy).
 warnings.filterwarnings("ignore", message="You requested advantage normalization")
@@ -32,15 +38,30 @@ warnings.filterwarnings("ignore", message="You requested advantage normalization
 AGENT_KEYS = dict(reward=("agents", "reward"), done=("agents", "done"), terminated=("agents", "terminated"))
 
 
+def adam(groups: list[dict[str, Any]], device: torch.device) -> torch.optim.Adam:
+    """One Adam over parameter groups (each with its ``lr``), fused on CPU and CUDA."""
+    fused = device.type in ("cpu", "cuda")
+    return torch.optim.Adam(groups, fused=fused or None, foreach=None if fused else True)
+
+
+def compiled(loss: torch.nn.Module, compile: bool):
+    """The loss module itself, or its ``torch.compile`` d forward."""
+    if not compile:
+        return loss
+    return torch.compile(loss, options={"guard_filter_fn": torch.compiler.skip_guard_on_all_nn_modules_unsafe})
+
+
 def _clip(params, max_norm: float) -> None:
     if max_norm > 0:
         torch.nn.utils.clip_grad_norm_(params, max_norm)
 
 
-def _finite(losses: dict[str, torch.Tensor]) -> None:
-    for name, value in losses.items():
-        if not torch.isfinite(value).all():
-            raise FloatingPointError(f"{name} is {value.item()}: training diverged")
+def check_finite(losses: dict[str, torch.Tensor]) -> None:
+    """Stop a diverged run: a non-finite loss raises ``FloatingPointError`` naming it."""
+    values = torch.stack([v.detach().reshape(()) for v in losses.values()])
+    if not bool(torch.isfinite(values).all()):
+        name, value = next((k, v) for k, v in losses.items() if not torch.isfinite(v).all())
+        raise FloatingPointError(f"{name} is {value.item()}: training diverged")
 
 
 class SACLearner:
@@ -48,7 +69,7 @@ class SACLearner:
 
     off_policy = True
 
-    def __init__(self, env, cfg: SACConfig, critic_input: str) -> None:
+    def __init__(self, env, cfg: SACConfig, critic_input: str, compile: bool = False) -> None:
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth)
         self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
@@ -64,37 +85,31 @@ class SACLearner:
         self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
         self.actor_params = list(self.loss.actor_network_params.values(True, True))
         self.q_params = list(self.loss.qvalue_network_params.values(True, True))
-        self.opt_actor = torch.optim.Adam(self.actor_params, lr=cfg.lr_actor)
-        self.opt_q = torch.optim.Adam(self.q_params, lr=cfg.lr_critic)
-        self.opt_alpha = torch.optim.Adam([self.loss.log_alpha], lr=cfg.lr_alpha)
+        self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
+                               {"params": self.q_params, "lr": cfg.lr_critic},
+                               {"params": [self.loss.log_alpha], "lr": cfg.lr_alpha}], env.device)
+        self.loss_fn = compiled(self.loss, compile)
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        losses = self.loss(batch)
-        _finite({k: losses[k] for k in ("loss_actor", "loss_qvalue", "loss_alpha")})
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        losses = self.loss_fn(batch)
+        terms = {k: losses[k] for k in ("loss_actor", "loss_qvalue", "loss_alpha")}
+        check_finite(terms)
         # One backward over the sum: the three losses touch disjoint parameter sets.
-        self.opt_actor.zero_grad(set_to_none=True)
-        self.opt_q.zero_grad(set_to_none=True)
-        self.opt_alpha.zero_grad(set_to_none=True)
-        (losses["loss_actor"] + losses["loss_qvalue"] + losses["loss_alpha"]).backward()
+        self.optimizer.zero_grad(set_to_none=True)
+        sum(terms.values()).backward()
         _clip(self.actor_params, self.cfg.max_grad_norm)
         _clip(self.q_params, self.cfg.max_grad_norm)
-        self.opt_q.step()
-        self.opt_actor.step()
-        self.opt_alpha.step()
+        self.optimizer.step()
         self.target_updater.step()
-        return {"loss_actor": losses["loss_actor"].item(), "loss_qvalue": losses["loss_qvalue"].item(),
-                "loss_alpha": losses["loss_alpha"].item(), "alpha": losses["alpha"].item(),
-                "entropy": losses["entropy"].item()}
+        return {**{k: v.detach() for k, v in terms.items()}, "alpha": losses["alpha"].detach(),
+                "entropy": losses["entropy"].detach()}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"loss": self.loss.state_dict(), "opt_actor": self.opt_actor.state_dict(),
-                "opt_q": self.opt_q.state_dict(), "opt_alpha": self.opt_alpha.state_dict()}
+        return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.loss.load_state_dict(state["loss"])
-        self.opt_actor.load_state_dict(state["opt_actor"])
-        self.opt_q.load_state_dict(state["opt_q"])
-        self.opt_alpha.load_state_dict(state["opt_alpha"])
+        self.optimizer.load_state_dict(state["optimizer"])
 
 
 class DDPGLearner:
@@ -102,7 +117,7 @@ class DDPGLearner:
 
     off_policy = True
 
-    def __init__(self, env, cfg: DDPGConfig, critic_input: str) -> None:
+    def __init__(self, env, cfg: DDPGConfig, critic_input: str, compile: bool = False) -> None:
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=False, hidden=cfg.hidden, depth=cfg.depth)
         self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
@@ -118,36 +133,34 @@ class DDPGLearner:
         self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
         self.actor_params = list(self.loss.actor_network_params.values(True, True))
         self.q_params = list(self.loss.value_network_params.values(True, True))
-        self.opt_actor = torch.optim.Adam(self.actor_params, lr=cfg.lr_actor)
-        self.opt_q = torch.optim.Adam(self.q_params, lr=cfg.lr_critic)
+        self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
+                               {"params": self.q_params, "lr": cfg.lr_critic}], env.device)
+        self.loss_fn = compiled(self.loss, compile)
 
     def on_frames(self, frames: int) -> None:
         """Anneal the exploration noise by the frames just collected."""
         self.exploration.step(frames)
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        losses = self.loss(batch)
-        _finite({k: losses[k] for k in ("loss_actor", "loss_value")})
-        self.opt_actor.zero_grad(set_to_none=True)
-        self.opt_q.zero_grad(set_to_none=True)
-        (losses["loss_actor"] + losses["loss_value"]).backward()
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        losses = self.loss_fn(batch)
+        terms = {"loss_actor": losses["loss_actor"], "loss_qvalue": losses["loss_value"]}
+        check_finite(terms)
+        self.optimizer.zero_grad(set_to_none=True)
+        sum(terms.values()).backward()
         _clip(self.actor_params, self.cfg.max_grad_norm)
         _clip(self.q_params, self.cfg.max_grad_norm)
-        self.opt_q.step()
-        self.opt_actor.step()
+        self.optimizer.step()
         self.target_updater.step()
-        return {"loss_actor": losses["loss_actor"].item(), "loss_qvalue": losses["loss_value"].item(),
-                "sigma": float(self.exploration.sigma)}
+        return {**{k: v.detach() for k, v in terms.items()}, "sigma": self.exploration.sigma.detach().clone()}
 
     def state_dict(self) -> dict[str, Any]:
         return {"loss": self.loss.state_dict(), "exploration": self.exploration.state_dict(),
-                "opt_actor": self.opt_actor.state_dict(), "opt_q": self.opt_q.state_dict()}
+                "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.loss.load_state_dict(state["loss"])
         self.exploration.load_state_dict(state["exploration"])
-        self.opt_actor.load_state_dict(state["opt_actor"])
-        self.opt_q.load_state_dict(state["opt_q"])
+        self.optimizer.load_state_dict(state["optimizer"])
 
 
 class PPOLearner:
@@ -155,7 +168,7 @@ class PPOLearner:
 
     off_policy = False
 
-    def __init__(self, env, cfg: PPOConfig, critic_input: str) -> None:
+    def __init__(self, env, cfg: PPOConfig, critic_input: str, compile: bool = False) -> None:
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth, return_log_prob=True)
         self.value = make_value(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
@@ -170,9 +183,10 @@ class PPOLearner:
                            **AGENT_KEYS)
         self.loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
         self.params = list(self.loss.parameters())
-        self.optimizer = torch.optim.Adam(self.params, lr=cfg.lr)
+        self.optimizer = adam([{"params": self.params, "lr": cfg.lr}], env.device)
+        self.loss_fn = compiled(self.loss, compile)
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """``epochs`` passes of minibatch steps over one on-policy batch ``[E, T]``."""
         with torch.no_grad():
             self.loss.value_estimator(batch, params=self.loss.critic_network_params,
@@ -180,19 +194,21 @@ class PPOLearner:
         flat = batch.reshape(-1)
         n = flat.shape[0]
         size = min(self.cfg.minibatch_size, n)
-        stats: dict[str, float] = {}
+        stats: dict[str, torch.Tensor] = {}
         for _ in range(self.cfg.epochs):
             order = torch.randperm(n)
-            for start in range(0, n - size + 1, size):
-                losses = self.loss(flat[order[start:start + size]])
-                total = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
-                _finite({"loss_objective": losses["loss_objective"], "loss_critic": losses["loss_critic"]})
+            for start in range(0, n - size + 1, size):  # minibatches of one batch: PPO's epochs
+                losses = self.loss_fn(flat[order[start:start + size]])
+                terms = {"loss_objective": losses["loss_objective"], "loss_critic": losses["loss_critic"]}
+                check_finite(terms)
+                total = terms["loss_objective"] + terms["loss_critic"] + losses.get("loss_entropy", 0.0)
                 self.optimizer.zero_grad(set_to_none=True)
                 total.backward()
                 _clip(self.params, self.cfg.max_grad_norm)
                 self.optimizer.step()
-                stats = {"loss_actor": losses["loss_objective"].item(), "loss_critic": losses["loss_critic"].item(),
-                         "entropy": losses["entropy"].item() if "entropy" in losses.keys() else math.nan}
+                stats = {"loss_actor": terms["loss_objective"].detach(), "loss_critic": terms["loss_critic"].detach(),
+                         "entropy": losses["entropy"].detach() if "entropy" in losses.keys()
+                         else torch.tensor(math.nan)}
         return stats
 
     def state_dict(self) -> dict[str, Any]:
@@ -206,5 +222,5 @@ class PPOLearner:
 LEARNERS = {"sac": SACLearner, "ddpg": DDPGLearner, "ppo": PPOLearner}
 
 
-def make_learner(env, algo_cfg, critic_input: str):
-    return LEARNERS[algo_cfg.name](env, algo_cfg, critic_input)
+def make_learner(env, algo_cfg, critic_input: str, compile: bool = False):
+    return LEARNERS[algo_cfg.name](env, algo_cfg, critic_input, compile=compile)

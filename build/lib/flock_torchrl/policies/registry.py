@@ -23,7 +23,6 @@ from typing import Any, Callable, Mapping
 from ..config import (POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, check_policy, compose_world,
                       to_object)
 from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, resolve_path
-from .models import adapt_n_agents
 
 # The project's shipped checkpoints: <root>/<reading>/<policy id>/seed<k>.pt
 CHECKPOINTS_DIR = Path("checkpoints")
@@ -121,7 +120,7 @@ def module_handle(module: Any) -> PolicyHandle:
     return PolicyHandle(
         id=str(meta.get("policy_id", "module")), name=name, kind="module", reading=meta.get("reading"),
         scenario=dict(meta.get("policy_scenario") or {}), extras=tuple(meta.get("extras", ())), origin="module",
-        build_for=lambda env: adapt_n_agents(module, env.n_agents))
+        build_for=lambda env: module)
 
 
 def _is_path(policy: Any) -> bool:

@@ -418,10 +418,10 @@ class _Training:
 
         def env_factory(worker: int = 0) -> FlockingEnv:
             return FlockingEnv(rc.train_scenario, num_envs=per_worker, device=device,
-                               seed=rc.seed * 1000 + worker)
+                               seed=rc.seed * 1000 + worker, compile_step=rc.compile)
 
         env = env_factory()
-        learner = make_learner(env, rc.algo, rc.policy.critic_input)
+        learner = make_learner(env, rc.algo, rc.policy.critic_input, compile=rc.compile)
         buffer = None
         if learner.off_policy:
             batch_swarm = max(1, math.ceil(rc.algo.batch_size / n_agents))
@@ -466,7 +466,8 @@ class _Training:
         next_eval = _next_multiple(self.counters["frames"], exp.eval_every_frames)
         next_ckpt = _next_multiple(self.counters["frames"], exp.checkpoint_every_frames)
         self.start = time.perf_counter() - self.counters["seconds"]
-        recent: list[tuple[float, bool]] = []
+        # The running means over the last 100 episodes continue from the (cut back) episode log.
+        recent = [(row[2], bool(row[3])) for row in self.episode_log.rows()[-100:]]
         interrupted = 0
         t_last = time.perf_counter()
         try:
@@ -488,7 +489,7 @@ class _Training:
                     self.counters["updates"] += n_updates
                     update_seconds = time.perf_counter() - t_update
                     collector.update_policy_weights_()
-                    log = {f"train/{k}": v for k, v in stats.items()}
+                    log = {f"train/{k}": float(v) for k, v in stats.items()}
                     if recent:
                         log["train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
                         log["train/success_rate"] = sum(s for _, s in recent) / len(recent)
@@ -535,12 +536,12 @@ class _Training:
         return TrainResult(self.run_dir, self.ckpt_path, c["frames"], c["episodes"], c["updates"], c["seconds"],
                            self.evaluations)
 
-    def _learn(self, batch: TensorDictBase) -> tuple[dict[str, float], int]:
+    def _learn(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], int]:
         learner, exp = self.learner, self.rc.experiment
         if not learner.off_policy:
             return learner.update(batch), 1
         self.buffer.extend(batch.select(*TRANSITION_KEYS, strict=False).reshape(-1))
-        stats: dict[str, float] = {}
+        stats: dict[str, torch.Tensor] = {}
         n = 0
         if self.counters["frames"] >= exp.init_random_frames and len(self.buffer) >= self.buffer.batch_size:
             device = torch.device(self.rc.device)

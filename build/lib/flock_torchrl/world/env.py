@@ -58,6 +58,9 @@ class FlockingEnv(EnvBase):
         policy_id: a policy (``policy3_g`` ...) whose sensing, instinct and reward apply (TorchRL
             reserves the keyword ``policy``).
         extras: names from :data:`EXTRAS`, or ``"all"``.
+        compile_step: ``torch.compile`` the world's step (:func:`~flock_torchrl.world.step.advance`);
+            its eager twin (``False``) gives the same transitions up to float round-off. Worth it
+            for a fixed batch (training); each new batch size compiles again.
         **overrides: any scenario field, e.g. ``tau_v=0.5``, ``n_uavs=9``.
 
     Example:
@@ -74,7 +77,8 @@ class FlockingEnv(EnvBase):
 
     def __init__(self, scenario: str | ScenarioConfig | DictConfig | Mapping[str, Any] = "train", num_envs: int = 1,
                  device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
-                 policy_id: str | None = None, extras: str | Iterable[str] = (), **overrides: Any) -> None:
+                 policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
+                 **overrides: Any) -> None:
         if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
             cfg = check_scenario(scenario)
         else:
@@ -95,6 +99,8 @@ class FlockingEnv(EnvBase):
             torch.tensor(cfg.rectangles, dtype=torch.float32, device=self.device).reshape(1, -1, 4),
         )
         self._generator = torch.Generator(device=self.device)
+        self.compile_step = bool(compile_step)
+        self._advance = torch.compile(advance, dynamic=False) if self.compile_step else advance
         self._make_spec()
         self.world = self._empty_world()
         self._sensed_once = False
@@ -229,8 +235,8 @@ class FlockingEnv(EnvBase):
         action = self._checked_action(tensordict)
         world = self.world
         state = {k: world[k] for k in _STATE_KEYS}
-        state, sensed, episode, reward = advance(state, world["sensed"], world["episode"], action, self._static,
-                                                 self.cfg, self._generator)
+        state, sensed, episode, reward = self._advance(state, world["sensed"].to_dict(), world["episode"].to_dict(),
+                                                       action, self._static, self.cfg, self._generator)
         self.world = TensorDict({**state, "sensed": sensed, "episode": episode}, batch_size=self.batch_size,
                                 device=self.device)
         out = self._output()
@@ -330,7 +336,7 @@ class FlockingEnv(EnvBase):
         as it would have here, S4 noise draws aside: their shape follows the batch)."""
         index = torch.as_tensor(index, device=self.device).reshape(-1)
         small = FlockingEnv(self.cfg, num_envs=int(index.numel()), device=self.device, seed=None,
-                            extras=self.extras)
+                            extras=self.extras, compile_step=self.compile_step)
         small.world = self.world[index]
         small._generator.set_state(self._generator.get_state())
         small._sensed_once = self._sensed_once

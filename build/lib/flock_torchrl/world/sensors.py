@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .geometry import Obstacles, cast_rays, circular_mean, pairwise, relative_angle, wrap
+from .geometry import Obstacles, cast_rays_along, circular_mean, pairwise, relative_angle, wrap
 
 
 def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor:
@@ -20,6 +20,15 @@ def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor
     # so it would wrap to +pi instead of -pi.
     offsets = torch.arange(n_beams, device=device, dtype=torch.float64) * (2 * math.pi / n_beams)
     return offsets.to(dtype)
+
+
+def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
+    """Unit vectors of every beam, ``[..., n_beams, 2]`` for headings ``[...]``: the heading's
+    direction rotated by each beam's fixed offset (no trigonometry per beam)."""
+    offsets = beam_offsets(n_beams, heading.device, torch.float64)
+    cos_o, sin_o = torch.cos(offsets).to(heading.dtype), torch.sin(offsets).to(heading.dtype)
+    cos_h, sin_h = torch.cos(heading)[..., None], torch.sin(heading)[..., None]
+    return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), -1)
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
@@ -33,8 +42,26 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
     """
-    angles = heading[..., None] + beam_offsets(n_beams, position.device, position.dtype)
-    return cast_rays(position, angles, obstacles, max_range)
+    return cast_rays_along(position, lambda b, n: beam_directions(heading[b, n], n_beams), obstacles, max_range,
+                           n_beams)
+
+
+def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` smallest entries along the last dimension, ascending, ties by index
+    (what a stable sort gives): ``k`` passes of ``argmin``, each masking its pick with ``inf``.
+
+    Returns:
+        ``(value [..., k], index [..., k])``; once the finite entries run out, values are
+        ``inf`` (and their indices arbitrary).
+    """
+    picks, indices = [], []
+    values = values.clone()  # one working copy, masked in place
+    for _ in range(k):  # k = 3 selections, independent of the batch and the swarm
+        index = values.argmin(-1, keepdim=True)
+        picks.append(torch.gather(values, -1, index))
+        indices.append(index)
+        values.scatter_(-1, index, math.inf)
+    return torch.cat(picks, -1), torch.cat(indices, -1)
 
 
 def shortest_beams(beams: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -43,17 +70,21 @@ def shortest_beams(beams: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Ten
     Returns:
         ``(distance [B, N, n], beam index [B, N, n])``.
     """
-    dist, idx = torch.sort(beams, dim=-1, stable=True)
-    return dist[..., :n], idx[..., :n]
+    return smallest(beams, n)
 
 
-def scan_observation(beams: torch.Tensor, n: int, max_range: float) -> torch.Tensor:
+def scan_observation(beams: torch.Tensor, n: int, max_range: float,
+                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """``o_scan`` (Eq. 16): ``[d_k / d_max^scan, alpha_k / pi]`` for the ``n`` shortest beams.
+
+    Args:
+        shortest: :func:`shortest_beams` of ``beams`` if already known (at least ``n`` of them).
 
     Returns:
         ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``.
     """
-    dist, idx = shortest_beams(beams, n)
+    dist, idx = shortest if shortest is not None else shortest_beams(beams, n)
+    dist, idx = dist[..., :n], idx[..., :n]
     alpha = wrap(beam_offsets(beams.shape[-1], beams.device, beams.dtype))[idx]
     return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
 
@@ -132,8 +163,8 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
         ``[B, N, 3 n]``.
     """
     key = torch.where(neighbours.visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
-    order = torch.sort(key, dim=-1, stable=True).indices[..., :n]
-    present = torch.gather(neighbours.visible, -1, order)
+    first, order = smallest(key, min(n, key.shape[-1]))
+    present = torch.isfinite(first)
     slots = torch.stack(
         (
             (torch.gather(neighbours.distance, -1, order) / camera_range).clamp(0.0, 1.0),
@@ -188,15 +219,22 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
     return beams, noisy
 
 
-def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Shortest beam's length ``d_scan1`` ``[B, N]`` and its return point minus the UAV's position ``[B, N, 2]``."""
-    d, idx = shortest_beams(beams, 1)
+def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
+                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Shortest beam's length ``d_scan1`` ``[B, N]`` and its return point minus the UAV's position ``[B, N, 2]``.
+
+    Args:
+        shortest: :func:`shortest_beams` of ``beams`` if already known.
+    """
+    d, idx = shortest if shortest is not None else shortest_beams(beams, 1)
+    d, idx = d[..., :1], idx[..., :1]
     angle = heading + beam_offsets(beams.shape[-1], beams.device, beams.dtype)[idx[..., 0]]
     return d[..., 0], d * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
 
 
 __all__ = [
     "Neighbours", "add_sensor_noise", "beam_offsets", "beam_return_offset", "camera_observation",
-    "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "shortest_beams",
+    "beam_directions", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "shortest_beams",
+    "smallest",
     "swarm_centre_state", "visibility",
 ]
