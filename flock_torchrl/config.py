@@ -246,6 +246,7 @@ class ExperimentConfig:
     max_episodes: int = MISSING              # budgets: 0 = no limit; at least one is set
     max_frames: int = MISSING
     max_minutes: float = MISSING
+    log_every_frames: int = MISSING          # scalar logs at most this often (0: every collector batch)
     eval_every_frames: int = MISSING
     eval_episodes: int = MISSING
     checkpoint_every_frames: int = MISSING
@@ -635,7 +636,7 @@ def check_experiment(cfg: ExperimentConfig) -> ExperimentConfig:
     p = "experiment"
     check_count(cfg, p, "num_envs", "workers", "steps_per_batch", "eval_episodes")
     check_count(cfg, p, "updates_per_batch", "init_random_frames", "max_episodes", "max_frames",
-                "eval_every_frames", "checkpoint_every_frames", minimum=0)
+                "log_every_frames", "eval_every_frames", "checkpoint_every_frames", minimum=0)
     check_non_negative(cfg, p, "max_minutes")
     if not (cfg.max_episodes or cfg.max_frames or cfg.max_minutes):
         _fail(p, "set at least one budget: max_episodes, max_frames or max_minutes")

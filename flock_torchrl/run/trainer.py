@@ -59,7 +59,7 @@ TRANSITION_KEYS = [("agents", "observation"), ("agents", "state"), ("agents", "a
 # What a resume may change: budgets, logging and runtime knobs. Anything else would train a
 # model with other settings than the ones its checkpoint and config.yaml record.
 RESUMABLE_CHANGES = ("experiment.max_frames", "experiment.max_episodes", "experiment.max_minutes",
-                     "experiment.eval_every_frames", "experiment.eval_episodes",
+                     "experiment.log_every_frames", "experiment.eval_every_frames", "experiment.eval_episodes",
                      "experiment.checkpoint_every_frames", "logger.", "resume", "progress", "threads", "device",
                      "compile")
 EXIT_SIGINT, EXIT_SIGTERM = 130, 143
@@ -464,6 +464,9 @@ class _Training:
         self.learner, self.buffer, self.env, self.logger = learner, buffer, env, logger
         progress = _Progress(rc, self.counters)
         next_eval = _next_multiple(self.counters["frames"], exp.eval_every_frames)
+        # Logged at the first batch past each multiple of log_every_frames (every batch if 0),
+        # so a resumed run logs the same steps as an uninterrupted one.
+        next_log = _next_multiple(self.counters["frames"], exp.log_every_frames) if exp.log_every_frames else 0
         next_ckpt = _next_multiple(self.counters["frames"], exp.checkpoint_every_frames)
         self.start = time.perf_counter() - self.counters["seconds"]
         # The running means over the last 100 episodes continue from the (cut back) episode log.
@@ -496,7 +499,10 @@ class _Training:
                     log["perf/updates_per_s"] = n_updates / update_seconds if update_seconds > 0 else 0.0
                     log["perf/frames_per_s"] = frames / max(t_collected - t_last, 1e-9)
                     t_last = time.perf_counter()
-                    self._log(log)
+                    if self.counters["frames"] >= next_log:
+                        if exp.log_every_frames:
+                            next_log = _next_multiple(self.counters["frames"], exp.log_every_frames)
+                        self._log(log)
                     progress.update(self.counters, log)
                     if exp.eval_every_frames and self.counters["frames"] >= next_eval:
                         next_eval = _next_multiple(self.counters["frames"], exp.eval_every_frames)
