@@ -95,7 +95,7 @@ def run_app(config_name: str, job: Callable[[DictConfig], Any], check: Callable[
         multirun = any(f in ("-m", "--multirun") for f in flags)
         if not any(f.split("=")[0] in HYDRA_INFO_FLAGS for f in flags):
             for overrides_of_job in job_overrides(overrides, multirun):
-                hydra_overrides = [o for o in overrides if o.lstrip("+~").startswith("hydra.")]
+                hydra_overrides = [o for o in overrides if o.lstrip("+~").startswith(("hydra.", "hydra/"))]
                 cfg = compose(config_name, [*overrides_of_job, *hydra_overrides], return_hydra_config=True)
                 check(cfg, output_dir(cfg, multirun))
     except (ConfigError, AppError) as exc:
