@@ -3,11 +3,12 @@ compiled step against its eager twin: the same actions from the same seeded star
 same transitions up to float round-off (tests/data/make_reference_rollouts.py recorded them).
 
 Round-off enters where the speed work changed the arithmetic: beam directions are the
-heading's unit vector rotated by fixed offsets instead of ``cos(heading + offset)``
-(about 1e-6 per beam), and a compiled step fuses and reorders float32 operations. Over 40
-steps the differences stay at float32 round-off of positions (~1e-5 m); every discrete
-outcome (which obstacle a beam hits, which UAVs see each other, the instinct's switch, done)
-is identical."""
+heading's unit vector rotated by fixed offsets instead of ``cos(heading + offset)``, pairwise
+offsets are taken per axis, and a compiled step fuses and reorders float32 operations: about
+1e-6 after one step. Over 40 steps of a swarm under its instinct the trajectories drift
+apart by up to ~2e-4 m, and a beam grazing an obstacle turns that into up to ~1e-2 m of
+range; every discrete outcome (which obstacle a beam hits, which UAVs see each other, the
+instinct's switch, done) stays identical."""
 
 from pathlib import Path
 
@@ -28,13 +29,14 @@ KEYS = [("agents", "observation"), ("agents", "state"), ("agents", "reward"), ("
         ("agents", "scan"), ("agents", "scan_obstacle"), ("episode", "d_c"), ("episode", "d_min_uav"),
         ("episode", "d_min_obs"), ("episode", "return"), ("done",), ("terminated",)]
 DISCRETE = {("agents", "scan_obstacle"), ("agents", "instinct"), ("done",), ("terminated",)}
-ATOL, RTOL = 2e-3, 1e-4  # metres and normalised readings; beams near 10 m carry ~1e-5 relative error
+ATOL = {("agents", "scan"): 3e-2}  # metres along a grazing beam; everything else below
+DEFAULT_ATOL = 3e-3                # metres, m/s, rad and normalised readings
 
 
 def close(a: torch.Tensor, b: torch.Tensor, key) -> bool:
     if key in DISCRETE:
         return torch.equal(a, b.to(a.dtype))
-    return torch.allclose(a.double(), b.double(), atol=ATOL, rtol=RTOL, equal_nan=True)
+    return torch.allclose(a.double(), b.double(), atol=ATOL.get(key, DEFAULT_ATOL), rtol=0, equal_nan=True)
 
 
 def replay(case: dict, scenario: str, policy: str, **kwargs) -> list:

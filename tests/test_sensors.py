@@ -265,7 +265,7 @@ def test_add_sensor_noise_statistics_and_clipping():
     dist = torch.full((4, n, n), 3.0)
     dist[..., 0] = 0.0
     nb = Neighbours(dist, torch.zeros(4, n, n), torch.full((4, n, n), PI - 0.01),
-                    torch.ones(4, n, n, dtype=torch.bool))
+                    torch.ones(4, n, n, dtype=torch.bool), dist.clone(), torch.zeros(4, n, n))
     noisy_beams, noisy = add_sensor_noise(beams, nb, scan_std=0.1, distance_std=0.2, angle_std=0.05,
                                           max_range=10.0, generator=g)
     # Standard deviations 0.1 m (beams), 0.2 m (distance), 0.05 rad (bearing), within ~5 %.

@@ -1,30 +1,33 @@
-"""Throughput benchmarks, each against a baseline run in the same process.
+"""Throughput, each figure a ratio against a baseline run in the same process.
 
-* env: frames/s of one batched ``FlockingEnv(num_envs=B)`` against TorchRL's ``SerialEnv``
-  of B single-env copies (the usual way to batch a non-vectorised env);
-* collection: frames/s of a TorchRL ``Collector`` running the shared SAC actor on each;
-* updates: SAC gradient steps/s of our learner against a plain TorchRL SAC update (one
-  optimiser over ``SACLoss``'s summed losses), same networks, same batch.
+* **env**: env-steps/s of one batched ``FlockingEnv`` (eager, and with ``compile_step``)
+  against TorchRL's ``VmasEnv("flocking", n_agents=5)`` (the ``bench`` extra), both under the
+  same loop (random actions, ``env.step``), at B = 64, 1024, 4096;
+* **swarm scale**: UAV-steps/s at N = 20, 50, 100 with the same number of UAVs (B x N = 5120)
+  against N = 5, with the world state's bytes per UAV;
+* **learner**: SAC gradient steps/s at the fast recipe's minibatch (1280 UAV transitions)
+  and the paper's (128), ours (eager, and with the compiled loss) against the learner as it
+  was before the speed work (``MultiAgentMLP`` networks, three Adam optimisers), same batches;
+* **GPU** (when CUDA is present): the env at B = 65,536 and the updates on the device.
 
-Run ``python scripts/benchmark.py``; numbers depend on the machine and on its load, the
-ratios much less.
+Timings alternate the candidates and keep each one's best of several repetitions, so load
+from other processes hits both sides alike; the ratios are what to read.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
-from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.envs import SerialEnv
-from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
 from ..config import check_algo, compose
 from ..io import write_text
 from ..policies.learners import SACLearner
-from ..policies.models import ACTION, make_actor, make_qvalue
+from ..policies.models import ACTION, LOG_PROB
 from ..run.trainer import TRANSITION_KEYS, _agentwise_done
 from ..world.env import FlockingEnv
 
@@ -35,147 +38,221 @@ class Row:
     ours: float
     baseline: float
     unit: str
+    note: str = ""
 
     @property
     def ratio(self) -> float:
-        return self.ours / self.baseline if self.baseline else float("nan")
+        return self.ours / self.baseline if self.baseline else math.nan
 
 
-def _rate(fn, count: int, repeat: int) -> float:
-    """Best of ``repeat`` timed calls (after a warm-up): the least disturbed by other load."""
-    fn()
-    best = float("inf")
-    for _ in range(repeat):
-        start = time.perf_counter()
+def paired(candidates: dict[str, Callable[[], None]], repeat: int = 3) -> dict[str, float]:
+    """Best wall time (s) of each candidate over ``repeat`` alternated rounds, after a warm-up."""
+    for fn in candidates.values():
         fn()
-        best = min(best, time.perf_counter() - start)
-    return count / best
-
-
-def _paired(ours, base, count: int, repeat: int) -> tuple[float, float]:
-    """Alternate the two so that background load hits both alike."""
-    ours(), base()
-    best_o = best_b = float("inf")
+    best = {name: math.inf for name in candidates}
     for _ in range(repeat):
-        for fn, which in ((ours, "o"), (base, "b")):
+        for name, fn in candidates.items():
             start = time.perf_counter()
             fn()
-            took = time.perf_counter() - start
-            if which == "o":
-                best_o = min(best_o, took)
-            else:
-                best_b = min(best_b, took)
-    return count / best_o, count / best_b
+            best[name] = min(best[name], time.perf_counter() - start)
+    return best
 
 
-def env_throughput(num_envs: int, steps: int = 20) -> Row:
-    batched = FlockingEnv("train", num_envs=num_envs, seed=0, policy_id="policy3_g")
-    serial = SerialEnv(num_envs, lambda: FlockingEnv("train", num_envs=1, seed=0, policy_id="policy3_g"))
+def _stepper(env, steps: int) -> Callable[[], None]:
+    td = env.reset()
+    state = {"td": td}
 
-    def run(env):
-        td = env.reset()
-
-        def go():
-            nonlocal td
-            for _ in range(steps):
-                td = env.rand_action(td)
-                td = env.step_and_maybe_reset(td)[1]
-        return go
-
-    ours = _rate(run(batched), num_envs * steps, 3)
-    base = _rate(run(serial), num_envs * steps, 3)
-    serial.close()
-    return Row(f"env steps, {num_envs} envs (batched vs SerialEnv)", ours, base, "frames/s")
+    def go() -> None:
+        td = state["td"]
+        for _ in range(steps):
+            td = env.rand_action(td)
+            td = env.step_and_maybe_reset(td)[1]
+        state["td"] = td
+    return go
 
 
-def collection_throughput(num_envs: int, frames_per_batch: int, batches: int = 4) -> Row:
-    def collect(make_env) -> float:
-        env = make_env()
-        actor = make_actor(FlockingEnv("train", num_envs=1, policy_id="policy3_g"))
-        collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=-1, track_traj_ids=False,
-                              auto_register_policy_transforms=False)
-        it = iter(collector)
-        next(it)
-        start = time.perf_counter()
-        frames = sum(next(it).numel() for _ in range(batches))
-        rate = frames / (time.perf_counter() - start)
-        collector.shutdown()
-        return rate
+def vmas_env(num_envs: int, device: str = "cpu"):
+    """TorchRL's VmasEnv flocking scenario with five agents, or ``None`` without vmas."""
+    try:
+        from torchrl.envs import VmasEnv
 
-    ours = collect(lambda: FlockingEnv("train", num_envs=num_envs, seed=0, policy_id="policy3_g"))
-    base = collect(lambda: SerialEnv(num_envs, lambda: FlockingEnv("train", num_envs=1, seed=0, policy_id="policy3_g")))
-    return Row(f"Collector + SAC actor, {num_envs} envs (batched vs SerialEnv)", ours, base, "frames/s")
+        return VmasEnv("flocking", num_envs=num_envs, n_agents=5, continuous_actions=True, device=device, seed=0)
+    except Exception:  # vmas is the optional `bench` extra
+        return None
 
 
-def _replay_batch(batch_swarm: int) -> tuple[FlockingEnv, object]:
-    env = FlockingEnv("train", num_envs=64, seed=0, policy_id="policy3_g")
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(4096), batch_size=batch_swarm)
+def env_rows(batches=(64, 1024, 4096), steps: int = 20, repeat: int = 3, device: str = "cpu",
+             compile_step: bool = True) -> list[Row]:
+    rows = []
+    for b in batches:
+        n = max(3, steps * 64 // b)
+        candidates = {"eager": _stepper(FlockingEnv("train", b, device, 0, policy_id="policy3_g"), n)}
+        if compile_step:
+            candidates["compiled"] = _stepper(FlockingEnv("train", b, device, 0, policy_id="policy3_g",
+                                                          compile_step=True), n)
+        vmas = vmas_env(b, device)
+        if vmas is not None:
+            candidates["vmas"] = _stepper(vmas, n)
+        best = paired(candidates, repeat)
+        base = b * n / best["vmas"] if "vmas" in best else math.nan
+        note = "" if vmas is not None else "vmas not installed: pip install -e .[bench]"
+        for name in ("eager", "compiled"):
+            if name in best:
+                rows.append(Row(f"env steps, B={b}, N=5 ({name} vs VmasEnv flocking)", b * n / best[name], base,
+                                "env-steps/s", note))
+    return rows
+
+
+def scale_rows(total: int = 5120, sizes=(5, 20, 50, 100), steps: int = 4, repeat: int = 3,
+               reading: str = "paper_fit", device: str = "cpu") -> list[Row]:
+    """UAV-steps/s at each swarm size with B x N = ``total``, against N = 5."""
+    envs = {n: FlockingEnv("train", max(1, total // n), device, 0, reading=reading, policy_id="policy3_g", n_uavs=n)
+            for n in sizes}
+    best = paired({n: _stepper(env, steps) for n, env in envs.items()}, repeat)
+    rate = {n: envs[n].num_envs * n * steps / best[n] for n in sizes}
+    rows = []
+    for n in sizes:
+        env = envs[n]
+        per_uav = env.world.bytes() / (env.num_envs * n)
+        rows.append(Row(f"swarm N={n}, B={env.num_envs} ({reading}; vs N={sizes[0]})", rate[n], rate[sizes[0]],
+                        "UAV-steps/s", f"world state {per_uav:.0f} B/UAV"))
+    return rows
+
+
+# ---------------------------------------------------------------------------- learner
+def replay_batches(batch_uav: int, count: int, device: str = "cpu") -> tuple[FlockingEnv, list]:
+    """``count`` minibatches of ``batch_uav`` UAV transitions from random-action rollouts."""
+    env = FlockingEnv("train", 64, device, 0, policy_id="policy3_g")
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(4096, device=device),
+                                    batch_size=max(1, math.ceil(batch_uav / env.n_agents)))
     td = env.reset()
     for _ in range(8):
-        td = env.rand_action(td)
-        step, td = env.step_and_maybe_reset(td)
+        step, td = env.step_and_maybe_reset(env.rand_action(td))
         buffer.extend(_agentwise_done(step.unsqueeze(-1), env.n_agents).select(*TRANSITION_KEYS, strict=False)
                       .reshape(-1))
-    return env, buffer
+    return env, [buffer.sample() for _ in range(count)]
 
 
-def update_throughput(batch_uav_transitions: int = 1280, steps: int = 20) -> Row:
-    cfg = check_algo(compose("train", [f"algo.batch_size={batch_uav_transitions}"]).algo)
-    env, buffer = _replay_batch(batch_uav_transitions // 5)
-    batches = [buffer.sample() for _ in range(steps)]
+class PreviousSACUpdate:
+    """The SAC update as it was before the speed work, kept as this benchmark's baseline:
+    ``MultiAgentMLP(share_params=True)`` networks and one Adam per network, same loss."""
 
-    torch.manual_seed(0)
-    learner = SACLearner(env, cfg, "state")
+    def __init__(self, env: FlockingEnv, cfg) -> None:
+        from tensordict.nn import NormalParamExtractor, TensorDictModule
+        from torch import nn
+        from torchrl.modules import MultiAgentMLP, ProbabilisticActor, TanhNormal, ValueOperator
+        from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
-    def ours():
-        for b in batches:
-            learner.update(b)
+        n, dev = env.n_agents, env.device
+        n_obs = env.full_observation_spec_unbatched[("agents", "observation")].shape[-1]
+        n_state = env.full_observation_spec_unbatched[("agents", "state")].shape[-1]
 
-    # The plain loop: one Adam over every loss parameter, summed losses (TorchRL tutorial style).
-    torch.manual_seed(0)
-    actor = make_actor(env)
-    loss = SACLoss(actor, make_qvalue(env, "state"), num_qvalue_nets=2, loss_function="l2", alpha_init=0.2,
-                   target_entropy=-2.0, action_spec=env.full_action_spec_unbatched[ACTION])
-    loss.set_keys(action=ACTION, state_action_value=("agents", "state_action_value"), reward=("agents", "reward"),
-                  done=("agents", "done"), terminated=("agents", "terminated"))
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=0.99)
-    updater = SoftUpdate(loss, tau=0.01)
-    optim = torch.optim.Adam(loss.parameters(), lr=1e-3)
+        def mlp(n_in: int, n_out: int) -> MultiAgentMLP:
+            return MultiAgentMLP(n_agent_inputs=n_in, n_agent_outputs=n_out, n_agents=n, centralized=False,
+                                 share_params=True, device=dev, depth=cfg.depth, num_cells=cfg.hidden,
+                                 activation_class=nn.ReLU)
 
-    def plain():
-        for b in batches:
-            out = loss(b)
-            total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
-            optim.zero_grad()
-            total.backward()
-            optim.step()
-            updater.step()
+        spec = env.full_action_spec_unbatched[ACTION]
+        actor = ProbabilisticActor(
+            TensorDictModule(nn.Sequential(mlp(n_obs, 4), NormalParamExtractor(scale_mapping="biased_softplus_1.0",
+                                                                            scale_lb=1e-4)),
+                             in_keys=[("agents", "observation")], out_keys=[("agents", "loc"), ("agents", "scale")]),
+            in_keys=[("agents", "loc"), ("agents", "scale")], out_keys=[ACTION], distribution_class=TanhNormal,
+            distribution_kwargs={"low": spec.space.low, "high": spec.space.high}, log_prob_key=LOG_PROB)
+        qvalue = ValueOperator(mlp(n_state + 2, 1), in_keys=[("agents", "state"), ACTION],
+                               out_keys=[("agents", "state_action_value")])
+        self.loss = SACLoss(actor_network=actor, qvalue_network=qvalue, num_qvalue_nets=2, loss_function="l2",
+                            alpha_init=cfg.alpha_init, target_entropy=cfg.target_entropy, action_spec=spec,
+                            delay_qvalue=True)
+        self.loss.set_keys(action=ACTION, state_action_value=("agents", "state_action_value"), log_prob=LOG_PROB,
+                           reward=("agents", "reward"), done=("agents", "done"), terminated=("agents", "terminated"))
+        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+        self.updater = SoftUpdate(self.loss, tau=cfg.tau)
+        self.optimisers = [
+            torch.optim.Adam(list(self.loss.actor_network_params.values(True, True)), lr=cfg.lr_actor),
+            torch.optim.Adam(list(self.loss.qvalue_network_params.values(True, True)), lr=cfg.lr_critic),
+            torch.optim.Adam([self.loss.log_alpha], lr=cfg.lr_alpha)]
 
-    rate_ours, rate_plain = _paired(ours, plain, steps, 3)
-    return Row(f"SAC updates, batch {batch_uav_transitions} UAV transitions (ours vs plain loop)",
-               rate_ours, rate_plain, "updates/s")
+    def update(self, batch) -> dict[str, float]:
+        losses = self.loss(batch)
+        for opt in self.optimisers:
+            opt.zero_grad(set_to_none=True)
+        (losses["loss_actor"] + losses["loss_qvalue"] + losses["loss_alpha"]).backward()
+        for opt in self.optimisers:
+            opt.step()
+        self.updater.step()
+        return {k: losses[k].item() for k in ("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy")}
 
 
-def run_all(quick: bool = False) -> list[Row]:
-    rows = [env_throughput(32, steps=10 if quick else 20)]
-    rows.append(collection_throughput(32, 256, batches=2 if quick else 4))
-    rows.append(update_throughput(1280, steps=5 if quick else 20))
+def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, repeat: int = 3,
+                 device: str = "cpu", compile_loss: bool = True) -> list[Row]:
+    rows = []
+    for batch_uav, recipe in batches:
+        cfg = check_algo(compose("train", [f"experiment={recipe}"]).algo)
+        env, samples = replay_batches(batch_uav, updates, device)
+        torch.manual_seed(0)
+        candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": SACLearner(env, cfg, "state")}
+        if compile_loss:
+            candidates["compiled"] = SACLearner(env, cfg, "state", compile=True)
+
+        def run(learner) -> Callable[[], None]:
+            def go() -> None:
+                for batch in samples:
+                    learner.update(batch)
+                if device.startswith("cuda"):
+                    torch.cuda.synchronize()
+            return go
+
+        for learner in candidates.values():  # compile (and warm up) outside the timed rounds
+            for batch in samples[:3]:
+                learner.update(batch)
+        best = paired({name: run(learner) for name, learner in candidates.items()}, repeat)
+        for name in ("eager", "compiled"):
+            if name in best:
+                rows.append(Row(f"SAC updates, batch {batch_uav} UAV transitions ({recipe}; {name} vs previous)",
+                                updates / best[name], updates / best["previous"], "updates/s"))
+    return rows
+
+
+def gpu_rows(device: str = "cuda") -> list[Row]:
+    """The env at B = 65,536 on the GPU (compiled vs eager) and the updates there."""
+    rows = env_rows((65536,), steps=4, repeat=2, device=device)
+    for row in rows:
+        row.what = row.what.replace("env steps", "GPU env steps")
+        row.ours *= 5  # env-steps/s -> UAV-steps/s (N = 5)
+        row.baseline *= 5
+        row.unit = "UAV-steps/s"
+    return rows + learner_rows(device=device)
+
+
+def run_all(quick: bool = False, device: str = "cpu") -> list[Row]:
+    repeat = 2 if quick else 3
+    rows = env_rows(steps=10 if quick else 20, repeat=repeat, device=device)
+    rows += scale_rows(repeat=repeat, device=device)
+    rows += learner_rows(updates=6 if quick else 12, repeat=repeat, device=device)
+    if torch.cuda.is_available() and device == "cpu":
+        rows += gpu_rows()
     return rows
 
 
 def format_rows(rows: list[Row]) -> str:
-    lines = [f"torch {torch.__version__}, {torch.get_num_threads()} threads",
-             f"{'benchmark':<70} {'ours':>10} {'baseline':>10} {'ratio':>7}  unit"]
+    lines = [f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), "
+             f"CUDA: {torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none'}",
+             f"{'benchmark':<78} {'ours':>12} {'baseline':>12} {'ratio':>8}  unit"]
     for r in rows:
-        lines.append(f"{r.what:<70} {r.ours:>10.1f} {r.baseline:>10.1f} {r.ratio:>6.2f}x  {r.unit}")
+        ratio = "" if math.isnan(r.ratio) else f"{r.ratio:7.2f}x"
+        lines.append(f"{r.what:<78} {r.ours:>12.1f} {r.baseline:>12.1f} {ratio:>8}  {r.unit}"
+                     + (f"  ({r.note})" if r.note else ""))
     return "\n".join(lines)
 
 
 def benchmark_app(cfg, out_dir) -> None:
-    import torch as _torch
-
     if cfg.threads:
-        _torch.set_num_threads(int(cfg.threads))
-    text = format_rows(run_all(quick=bool(cfg.quick)))
+        torch.set_num_threads(int(cfg.threads))
+    text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device)))
     print(text, flush=True)
     write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
+
+
+__all__ = ["PreviousSACUpdate", "Row", "benchmark_app", "env_rows", "format_rows", "learner_rows", "paired",
+           "run_all", "scale_rows"]

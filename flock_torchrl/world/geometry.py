@@ -60,6 +60,10 @@ class Obstacles:
     def count(self) -> int:
         return self.circles.shape[-2] + self.rectangles.shape[-2]
 
+    def __getitem__(self, index) -> "Obstacles":
+        """The obstacles of the worlds ``index`` (batch dimension first)."""
+        return Obstacles(self.circles[index], self.rectangles[index])
+
 
 def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Tensor) -> torch.Tensor:
     """Distance along unit rays to circles.

@@ -29,17 +29,26 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
     Returns:
         ``[B, N, 2]`` ``v_rep_i = sum_j (v_r_ij + v_t_ij)`` (Eq. 29).
     """
-    dist = torch.linalg.vector_norm(offset, dim=-1)
+    dx, dy = offset[..., 0].contiguous(), offset[..., 1].contiguous()
+    vx, vy = repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy), active, to_goal, gain, r0, tangential)
+    return torch.stack((vx, vy), -1)
+
+
+def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
+                 gain: float, r0: float, tangential: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`repulsion` on the offset's components ``dx, dy`` and length ``dist`` (each
+    ``[B, N, M]``), summed over ``M``: ``(v_x, v_y)``, each ``[B, N]``."""
     counted = active & (dist > 0) & (dist < r0)
-    safe = torch.where(counted, dist, torch.ones_like(dist))
-    magnitude = torch.where(counted, gain * (r0 - dist), torch.zeros_like(dist))
-    v_r = magnitude[..., None] * (-offset) / safe[..., None]
-    total = v_r
-    if tangential:
-        v_t = rotate_90(v_r)
-        sign = torch.where((v_t * to_goal[..., None, :]).sum(-1) >= 0, 1.0, -1.0)
-        total = v_r + sign[..., None] * v_t
-    return total.sum(-2)
+    # Per neighbour: v_r = -scale * (dx, dy), scale = gain (r0 - d) / d where counted, else 0.
+    scale = torch.where(counted, gain * (r0 - dist) / torch.where(counted, dist, torch.ones_like(dist)),
+                        torch.zeros_like(dist))
+    rx, ry = -scale * dx, -scale * dy
+    if not tangential:
+        return rx.sum(-1), ry.sum(-1)
+    # v_t = rotate(v_r, +90 deg) = (-ry, rx), flipped where it points away from the goal.
+    gx, gy = to_goal[..., 0, None], to_goal[..., 1, None]
+    sign = torch.where(-ry * gx + rx * gy >= 0, 1.0, -1.0)
+    return (rx - sign * ry).sum(-1), (ry + sign * rx).sum(-1)
 
 
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
@@ -60,8 +69,10 @@ def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.
         ``(triggered [B, N] bool, command [B, N, 2])`` (the command is not yet clipped).
     """
     d_scan1, wall_offset = beam_return_offset(beams, heading, shortest)
-    offsets = torch.cat((neighbours.offsets(heading), wall_offset[..., None, :]), -2)
-    active = torch.cat((neighbours.visible, torch.ones_like(neighbours.visible[..., :1])), -1)
-    command = repulsion(offsets, active, goal[:, None, :] - position, gain, r0, tangential)
+    to_goal = goal[:, None, :] - position
+    ux, uy = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance, neighbours.visible, to_goal, gain, r0,
+                          tangential)
+    wx, wy = repulsion_xy(wall_offset[..., 0, None], wall_offset[..., 1, None], d_scan1[..., None],
+                          torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential)
     triggered = torch.minimum(neighbours.nearest_distance(), d_scan1) <= safe_distance
-    return triggered, command
+    return triggered, torch.stack((ux + wx, uy + wy), -1)

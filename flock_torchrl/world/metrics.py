@@ -56,23 +56,29 @@ METRIC_BY_KEY = {m.key: m for m in METRICS}
 OBSTACLE_DISTANCE_CAP = 10.0
 
 
+def closest_pair(distance: torch.Tensor) -> torch.Tensor:
+    """The smallest distance between two different UAVs, ``[B]`` from ``[B, N, N]`` (``inf`` for one UAV)."""
+    n = distance.shape[-1]
+    eye = torch.eye(n, dtype=torch.bool, device=distance.device)
+    return distance.masked_fill(eye, math.inf).flatten(-2).amin(-1)
+
+
 def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: torch.Tensor,
-                    obstacle_distance: torch.Tensor) -> dict[str, torch.Tensor]:
+                    obstacle_distance: torch.Tensor, pair_distance: torch.Tensor | None = None
+                    ) -> dict[str, torch.Tensor]:
     """Swarm quantities of one time step, each ``[B]``.
 
     Args:
         position, velocity: ``[B, N, 2]``; heading ``[B, N]``;
         obstacle_distance: ``[B, N]`` signed distance to the nearest obstacle surface (negative inside).
+        pair_distance: the closest pair ``[B]`` (:func:`closest_pair`) if already known.
 
     Returns:
         ``obs`` (min over UAVs of the obstacle distance), ``uav`` (closest pair, ``inf`` for
         one UAV), ``d_c`` (Eq. 33 summand), ``v_error`` (Eq. 34 with the 1/N erratum),
         ``phi_error`` (Eq. 35 with the circular mean), ``speed`` (Eq. 36 summand).
     """
-    n = position.shape[-2]
-    _, dist = pairwise(position)
-    eye = torch.eye(n, dtype=torch.bool, device=position.device)
-    uav = dist.masked_fill(eye, math.inf).flatten(-2).amin(-1)
+    uav = pair_distance if pair_distance is not None else closest_pair(pairwise(position)[1])
     centre = position.mean(-2, keepdim=True)
     swarm_velocity = velocity.mean(-2)
     v_c = torch.linalg.vector_norm(swarm_velocity, dim=-1)

@@ -106,22 +106,25 @@ class Neighbours:
     """What the camera measures of every other UAV, ``[B, N, N]`` (row i: seen by UAV i).
 
     ``distance``, ``bearing`` (relative to i's heading) and ``heading_difference``
-    (``wrap(phi_i - phi_j)``) may carry S4 noise; ``visible`` never does.
+    (``wrap(phi_i - phi_j)``) may carry S4 noise; ``visible`` never does. ``dx``, ``dy`` are
+    the measured ``p_j - p_i`` in the world frame, one contiguous tensor per axis (pairwise
+    work stays on plain ``[B, N, N]`` tensors: the swarm can grow to hundreds of UAVs).
     """
 
     distance: torch.Tensor
     bearing: torch.Tensor
     heading_difference: torch.Tensor
     visible: torch.Tensor
+    dx: torch.Tensor
+    dy: torch.Tensor
 
-    def offsets(self, heading: torch.Tensor) -> torch.Tensor:
+    def offsets(self, heading: torch.Tensor | None = None) -> torch.Tensor:
         """Measured ``p_j - p_i`` in the world frame, ``[B, N, N, 2]``."""
-        angle = heading[..., None] + self.bearing
-        return self.distance[..., None] * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+        return torch.stack((self.dx, self.dy), -1)
 
     def with_visibility(self, visible: torch.Tensor) -> "Neighbours":
         """The same measurements seen through another camera (e.g. the critic's all-round one)."""
-        return Neighbours(self.distance, self.bearing, self.heading_difference, visible)
+        return Neighbours(self.distance, self.bearing, self.heading_difference, visible, self.dx, self.dy)
 
     def nearest_distance(self) -> torch.Tensor:
         """``d_uav1``: distance to the nearest visible UAV, ``inf`` if none, ``[B, N]``."""
@@ -146,11 +149,14 @@ def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: 
 def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
                        ) -> Neighbours:
     """True camera measurements between all UAV pairs (no occlusion, section 2 decision)."""
-    offset, distance = pairwise(position)
-    rel_bearing = relative_angle(offset, heading[..., None])
+    px, py = position[..., 0].contiguous(), position[..., 1].contiguous()
+    dx = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
+    dy = py[..., None, :] - py[..., :, None]
+    distance = torch.sqrt(dx * dx + dy * dy)
+    rel_bearing = wrap(torch.atan2(dy, dx) - heading[..., None])
     heading_difference = wrap(heading[..., :, None] - heading[..., None, :])
     return Neighbours(distance, rel_bearing, heading_difference,
-                      visibility(distance, rel_bearing, camera_range, half_fov))
+                      visibility(distance, rel_bearing, camera_range, half_fov), dx, dy)
 
 
 def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> torch.Tensor:
@@ -210,12 +216,13 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
         return torch.randn(like.shape, generator=generator, device=like.device, dtype=like.dtype)
 
     beams = (beams + scan_std * noise(beams)).clamp(0.0, max_range)
-    noisy = Neighbours(
-        distance=(neighbours.distance + distance_std * noise(neighbours.distance)).clamp_min(0.0),
-        bearing=wrap(neighbours.bearing + angle_std * noise(neighbours.bearing)),
-        heading_difference=wrap(neighbours.heading_difference + angle_std * noise(neighbours.heading_difference)),
-        visible=neighbours.visible,
-    )
+    distance = (neighbours.distance + distance_std * noise(neighbours.distance)).clamp_min(0.0)
+    bearing = wrap(neighbours.bearing + angle_std * noise(neighbours.bearing))
+    heading_difference = wrap(neighbours.heading_difference + angle_std * noise(neighbours.heading_difference))
+    # The measured offsets follow the measured distance and bearing (relative to the true heading).
+    angle = bearing + torch.atan2(neighbours.dy, neighbours.dx) - neighbours.bearing
+    noisy = Neighbours(distance, bearing, heading_difference, neighbours.visible,
+                       distance * torch.cos(angle), distance * torch.sin(angle))
     return beams, noisy
 
 

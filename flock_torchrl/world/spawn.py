@@ -27,6 +27,18 @@ from .geometry import Obstacles, distance_to_obstacles, pairwise
 _CHECK_ANGLES = 360
 _CHECK_GRID = 96
 LATTICES = 16
+# Rejection rounds without fewer offending UAVs after which the lattice takes over.
+_STALLED_ROUNDS = 10
+# Above this packing fraction of the separation discs in the spawn disc, rejection sampling
+# (parallel random sequential adsorption, which jams near 0.55) barely converges: the starts
+# come from the lattice at once.
+_DENSE = 0.4
+
+
+def packing_fraction(cfg: ScenarioConfig) -> float:
+    """Area of the N discs of radius ``spawn_separation / 2`` over the spawn disc's (grown by that radius)."""
+    half = cfg.spawn_separation / 2
+    return cfg.n_uavs * half * half / (cfg.swarm_spawn_radius + half) ** 2
 # Moving circles (S5) are placed by rejection with up to spawn_max_tries draws each; the
 # config check asks for at least this free fraction of their start box in the worst case,
 # so a failure would need spawn_max_tries misses in a row (probability <= 0.8 ** 200).
@@ -104,11 +116,10 @@ def lattice_offsets(cfg: ScenarioConfig, device=None, dtype=torch.float32) -> to
     return torch.where(inside[..., None], rotated, torch.full_like(rotated, math.nan)).to(dtype)
 
 
-def _lattice_free(centre: torch.Tensor, offsets: torch.Tensor, static: Obstacles, clearance: float) -> torch.Tensor:
-    """``[M, L, P]``: lattice point ``p`` of lattice ``l`` around centre ``m`` lies in the disc
-    and at least ``clearance`` from every obstacle surface."""
-    m = centre.shape[0]
-    points = centre[:, None, None] + offsets[None]                                     # [M, L, P, 2]
+def _free(points: torch.Tensor, static: Obstacles, clearance: float) -> torch.Tensor:
+    """``[M, ...]``: the points ``[M, ..., 2]`` (NaN: none) are at least ``clearance`` from every
+    obstacle surface."""
+    m = points.shape[0]
     free = ~torch.isnan(points[..., 0])
     if static.count:
         batch_static = Obstacles(static.circles.to(points.dtype).expand(m, -1, -1),
@@ -119,31 +130,41 @@ def _lattice_free(centre: torch.Tensor, offsets: torch.Tensor, static: Obstacles
     return free
 
 
+def _lattice_free(centre: torch.Tensor, offsets: torch.Tensor, static: Obstacles, clearance: float) -> torch.Tensor:
+    """``[M, L, P]``: lattice point ``p`` of lattice ``l`` around centre ``m`` lies in the disc
+    and at least ``clearance`` from every obstacle surface."""
+    return _free(centre[:, None, None] + offsets[None], static, clearance)
+
+
 def lattice_starts(centre: torch.Tensor, cfg: ScenarioConfig, static: Obstacles, generator: torch.Generator
                    ) -> torch.Tensor:
     """Starts on a hexagonal lattice, for worlds rejection sampling could not place.
 
-    Per world, one of the :func:`lattice_offsets` lattices with at least ``N`` free points is
-    drawn uniformly, then ``N`` of its free points uniformly without replacement; pairs are
-    then ``spawn_separation`` apart by construction. :func:`check_spawn_feasible` has proved
-    that such a lattice exists for every swarm centre the scenario can draw.
+    Per world, the lattices of :func:`lattice_offsets` are tried from a uniformly drawn one on
+    (in a fixed cyclic order) until one has at least ``N`` free points; ``N`` of them are then
+    drawn uniformly without replacement, so pairs are ``spawn_separation`` apart by
+    construction. :func:`check_spawn_feasible` has proved that such a lattice exists for every
+    swarm centre the scenario can draw.
 
     Args:
         centre: ``[M, 2]`` swarm centres. Returns ``[M, N, 2]``.
     """
     m, n, device = centre.shape[0], cfg.n_uavs, centre.device
     offsets = lattice_offsets(cfg, device)                                             # [L, P, 2]
-    free = _lattice_free(centre, offsets, static, cfg.spawn_clearance)                 # [M, L, P]
-    enough = free.sum(-1) >= n                                                         # [M, L]
-    if not bool(enough.any(-1).all()):
+    first = (_uniform((m,), generator, device) * LATTICES).long().clamp_max(LATTICES - 1)
+    lattice = first.clone()
+    free = torch.zeros(m, offsets.shape[1], dtype=torch.bool, device=device)
+    todo = torch.arange(m, device=device)
+    for shift in range(LATTICES):  # the fixed set of lattices, not worlds or UAVs
+        lattice[todo] = (first[todo] + shift) % LATTICES
+        room = _free(centre[todo][:, None] + offsets[lattice[todo]], static, cfg.spawn_clearance)   # [W, P]
+        free[todo] = room
+        todo = todo[room.sum(-1) < n]
+        if not todo.numel():
+            break
+    else:
         raise SpawnError(f"no spawn lattice has {n} free points (a config check_spawn_feasible should refuse)")
-    pick = torch.where(enough, _uniform(enough.shape, generator, device), torch.full_like(enough, -1.0,
-                                                                                           dtype=torch.float32))
-    lattice = pick.argmax(-1)                                                          # [M]
-    rows = torch.arange(m, device=device)
-    free_points = free[rows, lattice]                                                  # [M, P]
-    score = torch.where(free_points, _uniform(free_points.shape, generator, device),
-                        torch.full_like(free_points, 2.0, dtype=torch.float32))
+    score = torch.where(free, _uniform(free.shape, generator, device), torch.full_like(free, 2.0, dtype=torch.float32))
     chosen = score.argsort(-1)[:, :n]                                                  # [M, N]
     candidates = centre[:, None] + offsets[lattice]                                    # [M, P, 2]
     return torch.gather(candidates, 1, chosen[..., None].expand(-1, -1, 2))
@@ -166,16 +187,32 @@ def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator:
     static_b = Obstacles(static.circles.expand(batch, -1, -1), static.rectangles.expand(batch, -1, -1))
     radius = cfg.swarm_spawn_radius
 
-    position = swarm_centre[:, None] + _in_disc((batch, n), radius, generator, device)
-    for _ in range(cfg.spawn_max_tries):
-        bad = _first_of_close_pairs(position, cfg.spawn_separation)
+    def offending(worlds: torch.Tensor) -> torch.Tensor:
+        """``[W, N]``: UAVs of these worlds too close to an earlier one or to an obstacle."""
+        bad = _first_of_close_pairs(position[worlds], cfg.spawn_separation)
         if static_b.count:
-            bad |= distance_to_obstacles(position, static_b).amin(-1) < cfg.spawn_clearance
-        if not bad.any():
+            bad |= distance_to_obstacles(position[worlds], static_b[worlds]).amin(-1) < cfg.spawn_clearance
+        return bad
+
+    position = swarm_centre[:, None] + _in_disc((batch, n), radius, generator, device)
+    bad = offending(torch.arange(batch, device=device))
+    fewest, stalled = batch * n + 1, 0
+    for _ in range(cfg.spawn_max_tries if packing_fraction(cfg) <= _DENSE else 0):
+        count = int(bad.sum())
+        if not count:
+            break
+        # A dense swarm stops converging long before the round limit: hand it to the lattice.
+        fewest, stalled = (count, 0) if count < fewest else (fewest, stalled + 1)
+        if stalled >= _STALLED_ROUNDS:
             break
         fresh = swarm_centre[:, None] + _in_disc((batch, n), radius, generator, device)
         position = torch.where(bad[..., None], fresh, position)
-    else:
+        # Only worlds that had an offending UAV changed: only they need checking again.
+        worlds = bad.any(-1).nonzero().squeeze(-1)
+        bad = torch.zeros_like(bad)
+        bad[worlds] = offending(worlds)
+    count = int(bad.sum())
+    if count:
         stuck = bad.any(-1)
         position = position.clone()
         position[stuck] = lattice_starts(swarm_centre[stuck], cfg, static, generator)

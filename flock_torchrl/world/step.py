@@ -24,7 +24,7 @@ from ..config import ScenarioConfig
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
 from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
 from .instinct import instinct_command
-from .metrics import step_statistics, update_episode
+from .metrics import closest_pair, step_statistics, update_episode
 from .reward import total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
                       scan_observation, shortest_beams, swarm_centre_state, visibility)
@@ -52,7 +52,8 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         never noisy), ``scan [B, N, n_beams]`` (as sensed), ``scan_obstacle`` (index hit, -1
         none), ``instinct_triggered [B, N]`` and ``instinct_command [B, N, 2]`` (section 3,
         from the sensed readings), ``d_scan1``, ``d_uav1`` (true), ``d_goal``, ``alpha_goal``,
-        ``obstacle_distance`` (true distance to the nearest surface), all ``[B, N]``.
+        ``obstacle_distance`` (true distance to the nearest surface), all ``[B, N]``; and the
+        ``closest_pair`` of UAVs ``[B]`` (true), for the metrics.
     """
     position, heading, goal = state["position"], state["heading"], state["goal"]
     obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
@@ -94,6 +95,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
         "alpha_goal": relative_angle(to_goal, heading),
         "obstacle_distance": nearest_obstacle_distance(position, obstacles),
+        "closest_pair": closest_pair(true_neighbours.distance),
     }
 
 
@@ -142,7 +144,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         action=action, prev_action=prev_action)
     reached = (now["d_goal"] < cfg.goal_radius).any(-1)
     crashed = (now["obstacle_distance"] < cfg.collision_distance).any(-1)
-    stats = step_statistics(position, velocity, heading, now["obstacle_distance"])
+    stats = step_statistics(position, velocity, heading, now["obstacle_distance"], now["closest_pair"])
     terminated = reached | crashed
     if cfg.uav_collision_terminates:
         terminated = terminated | (stats["uav"] < cfg.collision_distance)
