@@ -45,9 +45,14 @@ def adam(groups: list[dict[str, Any]], device: torch.device) -> torch.optim.Adam
 
 
 def compiled(loss: torch.nn.Module, compile: bool):
-    """The loss module itself, or its ``torch.compile`` d forward."""
+    """The loss module itself, or its ``torch.compile`` d forward. Compiled code draws its
+    random numbers (SAC's reparameterised actions) from torch's own generator, as eager code
+    does (``fallback_random``), so a seeded run samples the same actions either way."""
     if not compile:
         return loss
+    import torch._inductor.config as inductor_config
+
+    inductor_config.fallback_random = True
     return torch.compile(loss, options={"guard_filter_fn": torch.compiler.skip_guard_on_all_nn_modules_unsafe})
 
 
@@ -88,6 +93,9 @@ class SACLearner:
         self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
                                {"params": self.q_params, "lr": cfg.lr_critic},
                                {"params": [self.loss.log_alpha], "lr": cfg.lr_alpha}], env.device)
+        # SACLoss turns its target entropy into a buffer on first use; do it here, outside any
+        # compiled region (traced, the conversion is lost and state_dict() fails later).
+        self.loss.target_entropy  # noqa: B018
         self.loss_fn = compiled(self.loss, compile)
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
