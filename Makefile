@@ -75,6 +75,7 @@ publish: $(STAMP)
 			$(PYTHON) scripts/reproduce.py table=$$t episodes=$(EPISODES) reading=$$r hydra.run.dir=results/$$r || exit 1; \
 		done; \
 		$(PYTHON) scripts/figures.py reading=$$r hydra.run.dir=figures/$$r || exit 1; \
+		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r || exit 1; \
 	done
 
 tune-baselines: $(STAMP)
@@ -82,6 +83,10 @@ tune-baselines: $(STAMP)
 
 benchmark: $(STAMP)
 	$(PYTHON) scripts/benchmark.py
+
+# Policy3-G (trained with 5 UAVs) flown by 5 to 100 UAVs, into outputs/scaling/<reading>/.
+scaling: $(STAMP)
+	$(PYTHON) scripts/scaling.py $(R_ARG)
 
 clean:
 	rm -rf outputs multirun .pytest_cache

@@ -348,4 +348,28 @@ def benchmark_main(argv: Sequence[str] | None = None) -> int:
     return run_app("benchmark", _benchmark_job, _check_benchmark, argv)
 
 
-__all__ = ["AppError", "benchmark_main", "evaluate_main", "figures_main", "ship_main", "tune_baselines_main", "job_overrides", "reproduce_main", "run_app", "train_main"]
+def _check_scaling(cfg: DictConfig, out: Path) -> None:
+    if not list(cfg.sizes) or any(not isinstance(n, int) or n < 1 for n in cfg.sizes):
+        raise ConfigError("sizes", f"a list of swarm sizes >= 1, got {list(cfg.sizes)}")
+    if cfg.episodes < 1:
+        raise ConfigError("episodes", f"must be an integer >= 1, got {cfg.episodes}")
+    _check_common(cfg)
+
+
+def _scaling_job(cfg: DictConfig) -> None:
+    import torch
+
+    from .report.scaling import scaling
+
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    scaling(str(cfg.policy_name), str(cfg.scenario.reading), list(cfg.sizes), int(cfg.episodes), int(cfg.seed),
+            str(cfg.checkpoints_dir), str(cfg.device), _hydra_out(), log=lambda m: print(m, flush=True))
+
+
+def scaling_main(argv: Sequence[str] | None = None) -> int:
+    """``scripts/scaling.py`` / ``make scaling``."""
+    return run_app("scaling", _scaling_job, _check_scaling, argv)
+
+
+__all__ = ["AppError", "benchmark_main", "scaling_main", "evaluate_main", "figures_main", "ship_main", "tune_baselines_main", "job_overrides", "reproduce_main", "run_app", "train_main"]

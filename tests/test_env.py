@@ -266,3 +266,23 @@ def test_set_seed_restarts_the_stream():
     torch.manual_seed(5)
     r2 = FlockingEnv("train", num_envs=2, seed=3).rollout(3)
     assert torch.equal(r1["next", "agents", "reward"], r2["next", "agents", "reward"])
+
+
+def test_torchrl_multi_agent_conventions():
+    # TorchRL's multi-agent scripts read env.group_map and call env.render(mode=...).
+    env = FlockingEnv("s2", num_envs=2, seed=0)
+    assert env.group_map == {"agents": [f"agent_{i}" for i in range(9)]}
+    assert list(env.full_action_spec.keys(True, True)) == [("agents", "action")]
+    assert env.full_done_spec["done"].shape == (2, 1)
+    env.reset()
+    assert env.render(mode="rgb_array", size=64).shape == (64, 64, 3)
+
+
+def test_extras_are_opt_in():
+    env = FlockingEnv("s5", num_envs=2, seed=0)
+    keys = set(env.reset().keys(True, True))
+    assert ("agents", "position") not in keys and ("agents", "scan") not in keys and "goal" not in keys
+    full = set(FlockingEnv("s5", num_envs=2, seed=0, extras="all").reset().keys(True, True))
+    assert {("agents", "position"), ("agents", "scan"), ("agents", "command"), "goal", ("obstacles", "position")} <= full
+    with pytest.raises(ValueError, match="extras"):
+        FlockingEnv("train", extras=("lidar",))

@@ -1,0 +1,47 @@
+"""The package's layers: imports only point down config/io -> world -> policies -> run -> report -> cli."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "flock_torchrl"
+LAYERS = ["config", "io", "world", "policies", "run", "report", "cli"]
+RANK = {"config": 0, "io": 0, "world": 1, "policies": 2, "run": 3, "report": 4, "cli": 5}
+
+
+def layer_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in RANK else "package"
+
+
+def imports(path: Path) -> set[str]:
+    """Absolute names of the flock_torchrl modules ``path`` imports (relative imports resolved)."""
+    module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            if name.startswith("flock_torchrl"):
+                found.add(name)
+                found.update(f"{name}.{alias.name}" for alias in node.names if name == "flock_torchrl")
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.startswith("flock_torchrl"))
+    return found
+
+
+@pytest.mark.parametrize("path", sorted(p for p in PACKAGE.rglob("*.py") if p.name != "__init__.py"),
+                         ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_only_point_down(path):
+    own = layer_of(".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts))
+    for name in imports(path):
+        other = layer_of(name)
+        if other == "package" or other == own:
+            continue
+        assert RANK[other] <= RANK[own], f"{path.relative_to(PACKAGE)} ({own}) imports {name} ({other})"
