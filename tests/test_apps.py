@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -84,8 +85,12 @@ def test_apps_write_only_their_output_folders(tmp_path):
 
 def test_the_wheel_carries_the_configs(tmp_path):
     # Observation 4: `pip install .` gave "unknown scenario 'train'; available: []".
+    source = tmp_path / "source"  # built from a copy: the build writes build/ and *.egg-info beside it
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md", "flock_torchrl", "conf"):
+        (shutil.copytree if (ROOT / name).is_dir() else shutil.copy)(ROOT / name, source / name)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
-                    str(tmp_path), str(ROOT)], check=True, capture_output=True, timeout=300)
+                    str(tmp_path), str(source)], check=True, capture_output=True, timeout=300)
     (wheel,) = tmp_path.glob("flock_torchrl-*.whl")
     site = tmp_path / "site"
     with zipfile.ZipFile(wheel) as archive:
