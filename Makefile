@@ -81,8 +81,10 @@ publish: $(STAMP)
 tune-baselines: $(STAMP)
 	$(PYTHON) scripts/tune_baselines.py $(R_ARG)
 
+# Throughput ratios against baselines run in the same process (VmasEnv needs the bench extra).
 benchmark: $(STAMP)
-	$(PYTHON) scripts/benchmark.py
+	$(PYTHON) -m pip install --quiet -e ".[bench]"
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/benchmark.py
 
 # Policy3-G (trained with 5 UAVs) flown by 5 to 100 UAVs, into outputs/scaling/<reading>/.
 scaling: $(STAMP)
