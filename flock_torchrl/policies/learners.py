@@ -69,10 +69,29 @@ def check_finite(losses: dict[str, torch.Tensor]) -> None:
         raise FloatingPointError(f"{name} is {value.item()}: training diverged")
 
 
-class SACLearner:
-    """SAC (paper Sec. III-C, Algorithm 1): twin Q, automatic temperature, soft targets."""
+class _OffPolicy:
+    """What SAC and DDPG share: one gradient step over the summed losses (they touch disjoint
+    parameter sets), gradient clipping per network, then the soft target update."""
 
     off_policy = True
+    cfg: Any
+    actor_params: list
+    q_params: list
+    optimizer: torch.optim.Optimizer
+    target_updater: SoftUpdate
+
+    def _gradient_step(self, terms: dict[str, torch.Tensor]) -> None:
+        check_finite(terms)
+        self.optimizer.zero_grad(set_to_none=True)
+        sum(terms.values()).backward()
+        _clip(self.actor_params, self.cfg.max_grad_norm)
+        _clip(self.q_params, self.cfg.max_grad_norm)
+        self.optimizer.step()
+        self.target_updater.step()
+
+
+class SACLearner(_OffPolicy):
+    """SAC (paper Sec. III-C, Algorithm 1): twin Q, automatic temperature, soft targets."""
 
     def __init__(self, env, cfg: SACConfig, critic_input: str, compile: bool = False) -> None:
         self.cfg = cfg
@@ -101,14 +120,7 @@ class SACLearner:
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         losses = self.loss_fn(batch)
         terms = {k: losses[k] for k in ("loss_actor", "loss_qvalue", "loss_alpha")}
-        check_finite(terms)
-        # One backward over the sum: the three losses touch disjoint parameter sets.
-        self.optimizer.zero_grad(set_to_none=True)
-        sum(terms.values()).backward()
-        _clip(self.actor_params, self.cfg.max_grad_norm)
-        _clip(self.q_params, self.cfg.max_grad_norm)
-        self.optimizer.step()
-        self.target_updater.step()
+        self._gradient_step(terms)
         return {**{k: v.detach() for k, v in terms.items()}, "alpha": losses["alpha"].detach(),
                 "entropy": losses["entropy"].detach()}
 
@@ -120,10 +132,8 @@ class SACLearner:
         self.optimizer.load_state_dict(state["optimizer"])
 
 
-class DDPGLearner:
+class DDPGLearner(_OffPolicy):
     """DDPG (PolicyD-G): deterministic tanh actor, Q critic, target networks, Gaussian exploration."""
-
-    off_policy = True
 
     def __init__(self, env, cfg: DDPGConfig, critic_input: str, compile: bool = False) -> None:
         self.cfg = cfg
@@ -152,13 +162,7 @@ class DDPGLearner:
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         losses = self.loss_fn(batch)
         terms = {"loss_actor": losses["loss_actor"], "loss_qvalue": losses["loss_value"]}
-        check_finite(terms)
-        self.optimizer.zero_grad(set_to_none=True)
-        sum(terms.values()).backward()
-        _clip(self.actor_params, self.cfg.max_grad_norm)
-        _clip(self.q_params, self.cfg.max_grad_norm)
-        self.optimizer.step()
-        self.target_updater.step()
+        self._gradient_step(terms)
         return {**{k: v.detach() for k, v in terms.items()}, "sigma": self.exploration.sigma.detach().clone()}
 
     def state_dict(self) -> dict[str, Any]:
