@@ -174,10 +174,13 @@ def _task(cfg: DictConfig) -> DictConfig:
 
 
 def _train_job(cfg: DictConfig) -> None:
+    import logging
+
     import torch
 
     from .run.trainer import train
 
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # no "Initialized LazyTensorStorage" lines
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     result = train(cfg)
