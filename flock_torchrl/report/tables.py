@@ -237,15 +237,64 @@ def table_header(table: int, reading: str, episodes: int, seed: int, score: Fide
             "safe success also needs no UAV pair closer than d_min^b (the paper does not report it).")
 
 
+def _pair(row: Mapping[str, Any], metric: str, digits: int = 3, scale: float = 1.0) -> str:
+    ours, paper = _float(row.get(metric)), _float(row.get(f"{metric}_paper"))
+    mine = "—" if math.isnan(ours) else f"{scale * ours:.{digits}f}"
+    return mine if math.isnan(paper) else f"{mine} / {scale * paper:.{digits}f}"
+
+
+def _percent(value: Any) -> str:
+    value = _float(value)
+    return "—" if math.isnan(value) else f"{100 * value:.1f}"
+
+
+def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: str, score: Fidelity) -> str:
+    """README-sized views of the tables present: ours / paper for the columns that tell most."""
+    lines = [f"# Summary, reading `{reading}`", "", f"{score}.", ""]
+    if 3 in rows:
+        lines += ["**Table III, training scenario** (ours / paper):", "",
+                  "| policy | success % | safe_success % | d_min_uav (m) | d_min_obs (m) | d_c (m) | t_goal (s) |",
+                  "|---|---|---|---|---|---|---|"]
+        for r in rows[3]:
+            lines.append(f"| {r['policy']} | {_pair(r, 'success_rate', 1, 100)} | "
+                         f"{_percent(r.get('safe_success_rate'))} | {_pair(r, 'd_min_uav')} | "
+                         f"{_pair(r, 'd_min_obs')} | {_pair(r, 'd_c')} | {_pair(r, 't_goal', 1)} |")
+        lines.append("")
+    if 4 in rows:
+        policies = list(dict.fromkeys(r["policy"] for r in rows[4]))
+        lines += ["**Table IV, S1-S5**: success % ours / paper (our safe_success %); d_min_uav m ours / paper:", "",
+                  "| scenario | " + " | ".join(policies) + " |", "|---|" + "---|" * len(policies)]
+        for scenario in dict.fromkeys(r["scenario"] for r in rows[4]):
+            cells = []
+            for policy in policies:
+                r = next(x for x in rows[4] if x["scenario"] == scenario and x["policy"] == policy)
+                cells.append(f"{_pair(r, 'success_rate', 1, 100)} ({_percent(r.get('safe_success_rate'))}); "
+                             f"{_pair(r, 'd_min_uav', 2)}")
+            lines.append(f"| {scenario} | " + " | ".join(cells) + " |")
+        lines.append("")
+    if 5 in rows:
+        lines += ["**Table V, Policy3-G by tau_v** (ours / paper):", "",
+                  "| tau_v (s) | success % | safe_success % | d_min_uav (m) | speed (m/s) | t_goal (s) |",
+                  "|---|---|---|---|---|---|"]
+        for r in rows[5]:
+            lines.append(f"| {r['tau_v']} | {_pair(r, 'success_rate', 1, 100)} | "
+                         f"{_percent(r.get('safe_success_rate'))} | {_pair(r, 'd_min_uav')} | "
+                         f"{_pair(r, 'speed')} | {_pair(r, 't_goal', 1)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
 def render_tables(out_dir: str | Path, reading: str, episodes: int, seed: int) -> Fidelity:
     """(Re)write every ``table<k>.md`` in ``out_dir`` from its CSV, headed by the reading's
-    fidelity score over the Tables III and IV found there; write ``fidelity.md``."""
+    fidelity score over the Tables III and IV found there; write ``fidelity.md`` and
+    ``summary.md`` (the README's compact views)."""
     out_dir = Path(out_dir)
     rows = {t: read_table_csv(out_dir / f"table{t}.csv") for t in TABLE_NUMBERS if (out_dir / f"table{t}.csv").is_file()}
     score = fidelity(rows)
     for t, table_rows in rows.items():
         write_text(out_dir / f"table{t}.md", markdown_table(t, table_rows, table_header(t, reading, episodes, seed,
                                                                                          score)))
+    write_text(out_dir / "summary.md", summary_markdown(rows, reading, score))
     write_text(out_dir / "fidelity.md", f"# Fidelity of the reading `{reading}`\n\n{score}.\n\n"
                "Definition (fixed before any result was seen, docs/specification.md section 9): the mean over Table "
                "III's twelve policies and Table IV's 25 cells of |ours - paper| / max(paper std, 0.1 |paper|, 0.05) "
