@@ -112,7 +112,7 @@ def run_app(config_name: str, job: Callable[[DictConfig], Any], check: Callable[
         try:
             job(cfg)
         except TrainingInterrupted as exc:
-            print(f"stopped by {exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
+            print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
                   f"resume with: {exc.command}", file=sys.stderr, flush=True)
             raise SystemExit(exc.exit_status) from None
         except KeyboardInterrupt:
