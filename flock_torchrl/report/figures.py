@@ -222,7 +222,8 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
 
     * ``fig4_rewards.png``: training reward per learned policy, all its shipped seeds pooled
       (the checkpoints carry their training curves); the paper recipe's run beside them.
-    * ``fig5_trajectories.png``: one seeded training-scenario episode per policy (3 x 4 grid).
+    * ``fig5_trajectories.png``: one seeded training-scenario episode per policy (3 x 4 grid),
+      and Policy3-G's as an animation, ``policy3_g_train.gif``.
     * ``fig6_generalization.png``: one seeded episode per scenario S1-S5 (rows) and policy
       (Policy3-G, PolicyD-G, PolicyP-G, Policy-MA, Policy-OP; columns).
 
@@ -255,6 +256,9 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
             trajectory_grid(panels, ncols=4, path=out / "fig5_trajectories.png",
                             suptitle=f"Training scenario ({reading}), seed {seed}")
             written.append(out / "fig5_trajectories.png")
+        method = next((p for p in panels if p[0].startswith("Policy3-G") and p[1] is not None), None)
+        if method is not None:  # the paper's method, one episode as an animation
+            written.append(save_animation(method[1], method[2], out / "policy3_g_train.gif", size=360, stride=2))
     if 6 in figs:
         log("Fig. 6: one episode per scenario and policy")
         panels = [_panel(f"S{s[-1]} {n}", n, s, reading, seed, device, checkpoints_dir, log)
