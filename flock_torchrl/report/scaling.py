@@ -21,7 +21,7 @@ from ..policies.registry import resolve
 from ..run.evaluation import EVAL_SEED, evaluate
 from .figures import _save_figure
 
-COLUMNS = ("n_uavs", "spawn_radius", "success_rate", "success_rate_low", "success_rate_high", "safe_success_rate",
+COLUMNS = ("n_uavs", "spawn_radius", "crashed_rate", "success_rate", "success_rate_low", "success_rate_high", "safe_success_rate",
            "safe_success_rate_low", "safe_success_rate_high", "d_c", "d_c_std", "d_min_uav", "d_min_uav_std",
            "t_goal", "t_goal_std", "n_episodes", "seconds")
 
@@ -38,7 +38,8 @@ def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100
         result = evaluate(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
         s = result.summary()
         radius = scenario_config("train", reading=reading, n_uavs=n).swarm_spawn_radius
-        rows.append({"n_uavs": n, "spawn_radius": radius, **{k: s[k] for k in COLUMNS if k in s},
+        rows.append({"n_uavs": n, "spawn_radius": radius, "crashed_rate": result.rate("crashed").rate,
+                     **{k: s[k] for k in COLUMNS if k in s},
                      "seconds": round(time.perf_counter() - start, 1)})
         log(f"N={n}: {result}")
     out = Path(out_dir)
@@ -47,13 +48,15 @@ def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100
              f"Training scenario, {episodes} episodes per size, evaluation seed {seed}, deterministic actions; "
              f"checkpoint `{handle.origin}`. Spawn radius by the reading's swarm-size rule "
              "(docs/specification.md section 9). Rates with 95 % Wilson intervals; cells mean ± std.", "",
-             "| N | spawn radius (m) | success % | safe_success % | d_c (m) | d_min_uav (m) | t_goal (s) |",
-             "|---|---|---|---|---|---|---|"]
+             "An episode ends when any UAV comes within 0.5 m of an obstacle: `crashed` counts those episodes.", "",
+             "| N | spawn radius (m) | success % | safe_success % | crashed % | d_c (m) | d_min_uav (m) | t_goal (s) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['n_uavs']} | {r['spawn_radius']:.2f} | {100 * r['success_rate']:.1f} "
                      f"[{100 * r['success_rate_low']:.1f}, {100 * r['success_rate_high']:.1f}] | "
                      f"{100 * r['safe_success_rate']:.1f} [{100 * r['safe_success_rate_low']:.1f}, "
-                     f"{100 * r['safe_success_rate_high']:.1f}] | {r['d_c']:.2f} ± {r['d_c_std']:.2f} | "
+                     f"{100 * r['safe_success_rate_high']:.1f}] | {100 * r['crashed_rate']:.1f} | "
+                     f"{r['d_c']:.2f} ± {r['d_c_std']:.2f} | "
                      f"{r['d_min_uav']:.2f} ± {r['d_min_uav_std']:.2f} | "
                      + ("—" if math.isnan(r["t_goal"]) else f"{r['t_goal']:.1f} ± {r['t_goal_std']:.1f}") + " |")
     write_text(out / "scaling.md", "\n".join(lines) + "\n")
