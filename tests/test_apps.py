@@ -20,6 +20,12 @@ TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.max_frames=48", 
         "experiment.eval_episodes=2", "progress=false"]
 
 
+def default_reading() -> str:
+    """The reading conf/world.yaml selects: where apps write when no reading is given."""
+    from flock_torchrl.config import compose
+    return compose("world").scenario.reading
+
+
 def run(script: str, *args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args], cwd=cwd, env=env,
@@ -34,7 +40,7 @@ def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     # folder named after its overrides, holding the config it trained with.
     run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
         cwd=tmp_path)
-    runs = sorted((tmp_path / "runs" / "tiny" / "literal" / "policy3_g").iterdir())
+    runs = sorted((tmp_path / "runs" / "tiny" / default_reading() / "policy3_g").iterdir())
     assert [r.name for r in runs] == [f"seed6__algo.lr_actor={lr},scenario.max_steps=40,scenario.tau_v={tau}"
                                       for lr in ("0.0001", "0.001") for tau in ("0.5", "2.0")]
     for folder in runs:
@@ -57,7 +63,7 @@ def test_sweep_dir_moves_everything_and_config_is_what_cfg_job_prints(tmp_path):
     run("train.py", "-m", *TINY, "experiment=fast", "experiment.num_envs=4", "experiment.max_frames=64",
         "experiment.init_random_frames=32", f"hydra.sweep.dir={out}", "logger=csv", cwd=tmp_path)
     assert not (tmp_path / "runs").exists()
-    (folder,) = list((out / "fast" / "literal" / "policy3_g").iterdir())
+    (folder,) = list((out / "fast" / default_reading() / "policy3_g").iterdir())
     assert {p.name for p in folder.iterdir()} >= {"config.yaml", "overrides.yaml", "last.pt", "episodes.csv", "logs"}
     saved = yaml.safe_load((folder / "config.yaml").read_text())
     assert saved["algo"]["batch_size"] == 1280  # the fast tuning, as trained
@@ -75,9 +81,9 @@ def test_apps_write_only_their_output_folders(tmp_path):
     shipped = {p: hashlib.sha256(p.read_bytes()).hexdigest() for d in ("results", "figures", "checkpoints")
                for p in (ROOT / d).rglob("*") if p.is_file()}
     run("evaluate.py", "policy=policy_op", "scenario=s1", "episodes=2", cwd=tmp_path)
-    assert (tmp_path / "outputs" / "evaluate" / "literal" / "policy_op" / "s1__episodes=2" / "summary.json").is_file()
+    assert (tmp_path / "outputs" / "evaluate" / default_reading() / "policy_op" / "s1__episodes=2" / "summary.json").is_file()
     run("reproduce.py", "table=5", "episodes=2", f"checkpoints_dir={tmp_path / 'none'}", cwd=tmp_path, check=False)
-    assert (tmp_path / "outputs" / "reproduce" / "literal" / "table5.md").is_file()
+    assert (tmp_path / "outputs" / "reproduce" / default_reading() / "table5.md").is_file()
     after = {p: hashlib.sha256(p.read_bytes()).hexdigest() for d in ("results", "figures", "checkpoints")
              for p in (ROOT / d).rglob("*") if p.is_file()}
     assert after == shipped

@@ -17,6 +17,13 @@ def tiny(policy="policy3_g", *overrides, logger="csv"):
                                               *overrides])
 
 
+
+def ckpt_reading(result) -> str:
+    """The reading the run trained under, as its config.yaml records it."""
+    import yaml
+    return yaml.safe_load((result.run_dir / "config.yaml").read_text())["scenario"]["reading"]
+
+
 @pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyd_g", "ddpg"), ("policyp_g", "ppo")])
 def test_tiny_run_of_each_learner(tmp_path, policy, algo):
     result = train(tiny(policy), tmp_path / "run")
@@ -39,7 +46,7 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
     # the shipped-policy loader returns a module ready for env.rollout, for any N
     policy_module = load_policy(result.checkpoint)
     meta = policy_module.flock_meta
-    assert meta["reading"] == "literal" and meta["policy_id"] == policy
+    assert meta["reading"] == ckpt_reading(result) and meta["policy_id"] == policy
     for scenario in ("train", "s2"):
         env = FlockingEnv(scenario, num_envs=2, seed=1, reading=meta["reading"], policy_id=meta["policy_id"])
         with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
