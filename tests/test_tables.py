@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from flock_torchrl.io import write_csv
-from flock_torchrl.report.tables import (KEY_COLUMNS, REFERENCE_DIR, VALUE_COLUMNS, comparison_rows, csv_columns,
-                                         fidelity, fidelity_terms, load_reference, render_tables, reproduce,
+from flock_torchrl.report.tables import (CLAIMS, KEY_COLUMNS, LEARNED, REFERENCE_DIR, VALUE_COLUMNS, claim_verdicts,
+                                         claims_markdown, comparison_rows, csv_columns, fidelity, fidelity_terms, load_reference, render_tables, reproduce,
                                          table_entries)
 from flock_torchrl.run.evaluation import goal_seeking_policy
 from flock_torchrl.world.metrics import CELL_METRICS
@@ -100,6 +100,31 @@ def test_fidelity_score_by_hand():
     # 0.05 floor: paper 0.002 +- 0.002 (Table IV, S1 Policy-OP v_error), ours 0.052: term 1.
     assert fidelity_terms([{"v_error": 0.052, "v_error_paper": 0.002, "v_error_std_paper": 0.002}]) == \
         pytest.approx([1.0])
+
+
+def test_claims_by_hand():
+    # The paper's own Table III: every claim holds (d_min_uav 1.581-1.742 instinct vs <= 0.190 without;
+    # success 88.8 < 93.6, 87.2 < 97.0, 87.6 < 93.8; Policy4-G 65.4 lowest; 93.8 > 88.6; d_c 1.112 < 2.945,
+    # 0.804 < 1.275).
+    paper_rows = comparison_rows(3, {})
+    verdicts = claim_verdicts(paper_rows)
+    assert len(verdicts) == len(CLAIMS) == 6
+    assert all(v["paper"] is not None and v["paper"][0] == v["paper"][1] for v in verdicts)
+    assert all(v["ours"] is None for v in verdicts)          # nothing evaluated: no verdict
+    # Ours: success saturated at 1.0 for Policy1 and Policy1-G (not greater), Policy2-G 0.99 < Policy2's 1.0.
+    ours = {name: {"success_rate": 1.0, "d_min_uav": 0.5, "d_c": 3.0} for name in LEARNED}
+    ours["Policy2-G"]["success_rate"] = 0.99
+    ours["Policy3-G"]["success_rate"] = 1.0
+    ours["Policy3"]["success_rate"] = 0.9                  # one pair of three: 1.0 > 0.9
+    ours["Policy4-G"]["success_rate"] = 0.95               # above Policy3's 0.9: not the lowest
+    ours["Policy3"]["d_min_uav"], ours["Policy5-G"]["d_min_uav"] = 1.2, 1.1   # Policy3-G 0.5 <= 1 m
+    ours["Policy1"]["d_min_uav"] = 0.6                     # above Policy3-G's 0.5: instinct not above all
+    ours["Policy1"]["d_c"], ours["Policy2"]["d_c"] = 2.0, 4.0   # 1 of 2 (Policy1-G 3.0 = Policy2-G 3.0)
+    rows = comparison_rows(3, {(n,): v for n, v in ours.items()})
+    got = {v["claim"].split(" (")[0]: v["ours"] for v in claim_verdicts(rows)}
+    assert list(got.values()) == [(0, 1), (2, 3), (1, 3), (0, 1), (0, 1), (1, 2)]
+    table = "\n".join(claims_markdown(rows))
+    assert "| 2 of 3 |" in table and "Policy4-G 95.0 / 65.4" in table
 
 
 def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):

@@ -184,6 +184,100 @@ def fidelity(tables: Mapping[int, Sequence[Mapping[str, Any]]]) -> Fidelity:
     return Fidelity(sum(terms) / len(terms) if terms else math.nan, len(terms), expected, parts)
 
 
+# ---------------------------------------------------------------------------- the paper's claims
+@dataclass(frozen=True)
+class Claim:
+    """One of the paper's qualitative claims, tested on Table III's rows. ``groups`` are lists
+    of paper policy names; ``compare(groups, value)`` says whether the claim holds for the
+    values of ``metric`` (``value(name)`` reads one row: ours or the paper's)."""
+
+    text: str
+    metric: str
+    groups: tuple[tuple[str, ...], ...]
+    compare: Callable[[tuple[tuple[str, ...], ...], Callable[[str], float]], tuple[int, int]]
+
+
+def _pairs_greater(groups, value):
+    """Each (a, b) pair of ``groups[0]`` x ``groups[1]`` position-wise: how many have a > b."""
+    pairs = list(zip(*groups))
+    return sum(value(b) > value(a) for a, b in pairs), len(pairs)
+
+
+def _pairs_smaller(groups, value):
+    pairs = list(zip(*groups))
+    return sum(value(a) < value(b) for a, b in pairs), len(pairs)
+
+
+def _all_above(groups, value):
+    """Every policy of ``groups[0]`` above every policy of ``groups[1]``: 1 of 1, else 0 of 1."""
+    return int(min(value(n) for n in groups[0]) > max(value(n) for n in groups[1])), 1
+
+
+def _all_above_1m(groups, value):
+    """Every policy of ``groups[0]`` keeps its mean closest pair above 1 m (half of d_safe)."""
+    return sum(value(n) > 1.0 for n in groups[0]), len(groups[0])
+
+
+def _lowest(groups, value):
+    """``groups[0][0]`` has the lowest value of all of ``groups[1]``."""
+    target = value(groups[0][0])
+    return int(all(target < value(n) for n in groups[1] if n != groups[0][0])), 1
+
+
+LEARNED = ("Policy1", "Policy1-G", "Policy2", "Policy2-G", "Policy3", "Policy3-G", "Policy4-G", "Policy5-G",
+           "PolicyD-G", "PolicyP-G")
+CLAIMS = (
+    Claim("the instinct keeps UAVs apart (closest pair of every instinct policy above every SAC policy without it)",
+          "d_min_uav", (("Policy3", "Policy3-G", "Policy5-G"), ("Policy1", "Policy1-G", "Policy2", "Policy2-G")),
+          _all_above),
+    Claim("... and by a safe margin: every instinct policy's mean closest pair above 1 m (half of d_safe)",
+          "d_min_uav", (("Policy3", "Policy3-G", "Policy5-G"),), _all_above_1m),
+    Claim("the centralised critic (-G) beats its plain twin (success)", "success_rate",
+          (("Policy1", "Policy2", "Policy3"), ("Policy1-G", "Policy2-G", "Policy3-G")), _pairs_greater),
+    Claim("Policy4-G (instinct as a reward term) has the lowest success of the learned policies", "success_rate",
+          (("Policy4-G",), LEARNED), _lowest),
+    Claim("the tangential term helps (Policy3-G above Policy5-G, success)", "success_rate",
+          (("Policy5-G",), ("Policy3-G",)), _pairs_greater),
+    Claim("a wider field of view gives more compact flocks (d_c, 2 pi below 0.5 pi, without instinct)", "d_c",
+          (("Policy1", "Policy1-G"), ("Policy2", "Policy2-G")), _pairs_smaller),
+)
+
+
+def claim_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """For each of :data:`CLAIMS`: how many of its comparisons hold in the paper's Table III and
+    in ours, with the values compared. Rows missing a policy give ``None`` for that side."""
+    by_name = {r["policy"]: r for r in rows}
+    out = []
+    for claim in CLAIMS:
+        names = list(dict.fromkeys(n for g in claim.groups for n in g))
+        verdict: dict[str, Any] = {"claim": claim.text, "metric": claim.metric}
+        for side, column in (("paper", f"{claim.metric}_paper"), ("ours", claim.metric)):
+            values = {n: _float(by_name[n].get(column)) if n in by_name else math.nan for n in names}
+            if any(math.isnan(v) for v in values.values()):
+                verdict[side], verdict[f"{side}_values"] = None, values
+                continue
+            verdict[side] = claim.compare(claim.groups, values.__getitem__)
+            verdict[f"{side}_values"] = values
+        out.append(verdict)
+    return out
+
+
+def claims_markdown(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The claims as a markdown table: holds in k of n comparisons, paper and ours, with values."""
+    def fmt(v: Any) -> str:
+        return "—" if v is None else ("holds" if v[0] == v[1] else f"{v[0]} of {v[1]}")
+
+    lines = ["**The paper's claims, on Table III** (comparisons that hold, paper / ours; values ours / paper):", "",
+             "| claim | paper | ours | values |", "|---|---|---|---|"]
+    for v in claim_verdicts(rows):
+        scale, digits = (100, 1) if v["metric"] == "success_rate" else (1, 3)
+        values = ", ".join(
+            f"{n} {scale * v['ours_values'][n]:.{digits}f} / {scale * v['paper_values'][n]:.{digits}f}"
+            for n in v["ours_values"])
+        lines.append(f"| {v['claim']} | {fmt(v['paper'])} | {fmt(v['ours'])} | {v['metric']}: {values} |")
+    return lines + [""]
+
+
 # ---------------------------------------------------------------------------- markdown
 def _pm(mean: float, std: float) -> str:
     return "—" if math.isnan(mean) else f"{mean:.3f} ± {std:.3f}"
@@ -260,6 +354,7 @@ def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: s
                          f"{_percent(r.get('safe_success_rate'))} | {_pair(r, 'd_min_uav')} | "
                          f"{_pair(r, 'd_min_obs')} | {_pair(r, 'd_c')} | {_pair(r, 't_goal', 1)} |")
         lines.append("")
+        lines += claims_markdown(rows[3])
     if 4 in rows:
         policies = list(dict.fromkeys(r["policy"] for r in rows[4]))
         lines += ["**Table IV, S1-S5**: success % ours / paper (our safe_success %); d_min_uav m ours / paper:", "",
