@@ -229,7 +229,7 @@ def run_all(quick: bool = False, device: str = "cpu") -> list[Row]:
     repeat = 2 if quick else 3
     rows = env_rows(steps=10 if quick else 20, repeat=repeat, device=device)
     rows += scale_rows(repeat=repeat, device=device)
-    rows += learner_rows(updates=6 if quick else 12, repeat=repeat, device=device)
+    rows += learner_rows(updates=6 if quick else 30, repeat=2 if quick else 5, device=device)
     if torch.cuda.is_available() and device == "cpu":
         rows += gpu_rows()
     return rows
