@@ -47,7 +47,7 @@ train-all: $(STAMP)
 
 # The paper's own recipe (Table I, one env, one update per step, 5000 episodes) for Policy3-G.
 train-paper: $(STAMP)
-	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py experiment=paper policy=policy3_g seed=0 progress=false \
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py experiment=paper policy=policy3_g seed=0 progress=false compile=true \
 		resume=auto $(R_ARG)
 
 # The named step that updates checkpoints/ (slim policies of the finished runs, per reading).
