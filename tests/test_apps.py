@@ -116,8 +116,12 @@ def test_every_package_folder_is_packaged():
     tomllib = pytest.importorskip("tomllib")  # Python 3.11+
 
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "flock_torchrl").rglob("__init__.py")}
-    assert found | {"flock_torchrl.conf"} == listed
+    # Every folder of the package (code or data) and of conf/ is listed, so setuptools ships it.
+    found = {".".join(p.relative_to(ROOT).parts) for p in [ROOT / "flock_torchrl", *(ROOT / "flock_torchrl").rglob("*")]
+             if p.is_dir() and p.name != "__pycache__"}
+    configs = {".".join(("flock_torchrl",) + p.relative_to(ROOT).parts) for p in [ROOT / "conf", *(ROOT / "conf").rglob("*")]
+               if p.is_dir()}
+    assert found | configs == listed
 
 
 @pytest.mark.parametrize("script", ["train.py", "evaluate.py", "reproduce.py", "figures.py", "tune_baselines.py",
