@@ -29,7 +29,7 @@ from ..run.evaluation import EVAL_SEED, rollout_episode
 from ..run.trainer import EPISODE_COLUMNS
 from ..world.frame import (DPI, draw_moving, draw_static, draw_uavs, frame_image, image_size, rollout_states,
                            style_axes, world_extent)
-from .tables import table_entries
+from .tables import PAPER_RECIPE_ROW, table_entries
 
 
 def _save_figure(fig: Figure, path: str | os.PathLike) -> Path:
@@ -157,24 +157,33 @@ def binned_mean_ci(episodes: np.ndarray, rewards: np.ndarray, bin_size: int = 10
 
 def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
                        path: str | os.PathLike | None = None, bin_size: int = 100,
-                       title: str | None = "Training reward (mean and 95 % CI per 100 episodes)") -> Figure:
+                       title: str | None = "Training reward (mean and 95 % CI per 100 episodes)",
+                       highlight: Sequence[str] = ()) -> Figure:
     """Paper Fig. 4: per policy, the reward of all its runs pooled in blocks of ``bin_size``
     episodes, mean line and 95 % band.
 
     Args:
         curves: policy name -> ``[(episode, reward), ...]``, one pair of arrays per run (seed).
+        highlight: names drawn black and dashed (e.g. the paper recipe's run beside the others).
+            When a curve runs ten times longer than the shortest, the episode axis is
+            logarithmic, so that both stay readable.
     """
     fig = Figure(figsize=(7, 4.5), dpi=DPI, layout="constrained")
     ax = fig.add_subplot(1, 1, 1)
+    lengths = []
     for i, (name, runs) in enumerate(curves.items()):
         if not runs:
             continue
         episodes = np.concatenate([e for e, _ in runs])
         rewards = np.concatenate([r for _, r in runs])
         x, mean, half = binned_mean_ci(episodes, rewards, bin_size)
+        lengths.append(x.max())
         label = f"{name} ({len(runs)} run{'s' if len(runs) > 1 else ''})"
-        ax.plot(x, mean, color=f"C{i % 10}", lw=1.2, label=label, marker="o" if x.size < 3 else None, ms=3)
-        ax.fill_between(x, mean - half, mean + half, color=f"C{i % 10}", alpha=0.2, lw=0)
+        color, style = ("k", "--") if name in highlight else (f"C{i % 10}", "-")
+        ax.plot(x, mean, color=color, ls=style, lw=1.2, label=label, marker="o" if x.size < 3 else None, ms=3)
+        ax.fill_between(x, mean - half, mean + half, color=color, alpha=0.2 if name not in highlight else 0.1, lw=0)
+    if lengths and max(lengths) >= 10 * min(lengths):
+        ax.set_xscale("log")
     ax.set_xlabel("episode")
     ax.set_ylabel("episode reward")
     if title:
@@ -240,11 +249,11 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
             if runs:
                 curves[name] = runs
         if paper_run is not None and Path(paper_run).is_file():
-            curves["Policy3-G (paper recipe)"] = [training_curve(paper_run)]
+            curves[PAPER_RECIPE_ROW] = [training_curve(paper_run)]
         if curves:
             for name, runs in curves.items():
                 log(f"Fig. 4: {name}: {len(runs)} run(s), {sum(e.size for e, _ in runs)} episodes")
-            plot_reward_curves(curves, out / "fig4_rewards.png",
+            plot_reward_curves(curves, out / "fig4_rewards.png", highlight=[PAPER_RECIPE_ROW],
                                title=f"Training reward ({reading}; mean and 95 % CI per 100 episodes)")
             written.append(out / "fig4_rewards.png")
         else:
