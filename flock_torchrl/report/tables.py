@@ -480,6 +480,7 @@ def _counters(path: str | Path) -> str:
     return f"{c['episodes']} episodes, {c['updates']} updates, {c['seconds'] / 3600:.1f} h"
 
 
-__all__ = ["FIDELITY_METRICS", "Fidelity", "KEY_COLUMNS", "REFERENCE_DIR", "TABLE_NUMBERS", "TableEntry",
-           "VALUE_COLUMNS", "comparison_rows", "csv_columns", "fidelity", "fidelity_terms", "load_reference",
+__all__ = ["CLAIMS", "Claim", "FIDELITY_METRICS", "Fidelity", "KEY_COLUMNS", "LEARNED", "PAPER_RECIPE_ROW",
+           "REFERENCE_DIR", "TABLE_NUMBERS", "TableEntry", "VALUE_COLUMNS", "claim_verdicts", "claims_markdown",
+           "comparison_rows", "csv_columns", "fidelity", "fidelity_terms", "load_reference",
            "markdown_table", "render_tables", "reproduce", "table_entries"]
