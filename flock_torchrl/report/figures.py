@@ -179,9 +179,9 @@ def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarra
         x, mean, half = binned_mean_ci(episodes, rewards, bin_size)
         lengths.append(x.max())
         label = f"{name} ({len(runs)} run{'s' if len(runs) > 1 else ''})"
-        color, style = ("k", "--") if name in highlight else (f"C{i % 10}", "-")
+        color, style, band = ("k", "--", 0.1) if name in highlight else (f"C{i % 10}", "-", 0.2)
         ax.plot(x, mean, color=color, ls=style, lw=1.2, label=label, marker="o" if x.size < 3 else None, ms=3)
-        ax.fill_between(x, mean - half, mean + half, color=color, alpha=0.2 if name not in highlight else 0.1, lw=0)
+        ax.fill_between(x, mean - half, mean + half, color=color, alpha=band, lw=0)
     if lengths and max(lengths) >= 10 * min(lengths):
         ax.set_xscale("log")
     ax.set_xlabel("episode")

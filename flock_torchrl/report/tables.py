@@ -197,13 +197,9 @@ class Claim:
     compare: Callable[[tuple[tuple[str, ...], ...], Callable[[str], float]], tuple[int, int]]
 
 
-def _pairs_greater(groups, value):
-    """Each (a, b) pair of ``groups[0]`` x ``groups[1]`` position-wise: how many have a > b."""
-    pairs = list(zip(*groups))
-    return sum(value(b) > value(a) for a, b in pairs), len(pairs)
-
-
-def _pairs_smaller(groups, value):
+def _pairs_below(groups, value):
+    """The pairs ``(a, b)`` of ``groups[0]`` and ``groups[1]``, position by position: how many
+    have ``value(a) < value(b)``."""
     pairs = list(zip(*groups))
     return sum(value(a) < value(b) for a, b in pairs), len(pairs)
 
@@ -233,13 +229,13 @@ CLAIMS = (
     Claim("... and by a safe margin: every instinct policy's mean closest pair above 1 m (half of d_safe)",
           "d_min_uav", (("Policy3", "Policy3-G", "Policy5-G"),), _all_above_1m),
     Claim("the centralised critic (-G) beats its plain twin (success)", "success_rate",
-          (("Policy1", "Policy2", "Policy3"), ("Policy1-G", "Policy2-G", "Policy3-G")), _pairs_greater),
+          (("Policy1", "Policy2", "Policy3"), ("Policy1-G", "Policy2-G", "Policy3-G")), _pairs_below),
     Claim("Policy4-G (instinct as a reward term) has the lowest success of the learned policies", "success_rate",
           (("Policy4-G",), LEARNED), _lowest),
     Claim("the tangential term helps (Policy3-G above Policy5-G, success)", "success_rate",
-          (("Policy5-G",), ("Policy3-G",)), _pairs_greater),
+          (("Policy5-G",), ("Policy3-G",)), _pairs_below),
     Claim("a wider field of view gives more compact flocks (d_c, 2 pi below 0.5 pi, without instinct)", "d_c",
-          (("Policy1", "Policy1-G"), ("Policy2", "Policy2-G")), _pairs_smaller),
+          (("Policy1", "Policy1-G"), ("Policy2", "Policy2-G")), _pairs_below),
 )
 
 
