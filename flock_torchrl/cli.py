@@ -184,6 +184,8 @@ def _train_job(cfg: DictConfig) -> None:
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     result = train(cfg)
+    if sum(result.split.values()) > 0:
+        print(result.split_line(), flush=True)
     print(f"checkpoint: {result.checkpoint} ({result.frames} frames, {result.episodes} episodes, "
           f"{result.updates} updates, {result.seconds:.0f} s)", flush=True)
     if result.evaluations:

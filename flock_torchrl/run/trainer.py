@@ -94,6 +94,15 @@ class TrainResult:
     seconds: float
     evaluations: list[dict[str, float]] = field(default_factory=list)
     interrupted: int = 0               # the signal that stopped the run early (0: none)
+    split: dict[str, float] = field(default_factory=dict)  # seconds of this process's loop, by part
+
+    def split_line(self) -> str:
+        """``time split: env 10.2 s (31 %), collection ...`` over this process's training loop."""
+        total = sum(self.split.values())
+        if total <= 0:
+            return "time split: no training steps in this process"
+        parts = ", ".join(f"{k} {v:.1f} s ({100 * v / total:.0f} %)" for k, v in self.split.items())
+        return f"time split ({total:.0f} s of training loop): {parts}"
 
 
 class TrainingInterrupted(Exception):
@@ -472,11 +481,18 @@ class _Training:
         # The running means over the last 100 episodes continue from the (cut back) episode log.
         recent = [(row[2], bool(row[3])) for row in self.episode_log.rows()[-100:]]
         interrupted = 0
+        split = self.split = dict.fromkeys(("env", "collection", "buffer", "sampling", "update", "logging"), 0.0)
+        env_busy = env.busy_seconds
         t_last = time.perf_counter()
         try:
             with _Signals() as signals:
                 for batch in collector:
                     t_collected = time.perf_counter()
+                    if exp.workers == 1:
+                        split["env"] += env.busy_seconds - env_busy
+                        split["collection"] -= env.busy_seconds - env_busy
+                        env_busy = env.busy_seconds
+                    split["collection"] += t_collected - t_last
                     frames = batch.numel()
                     self.counters["frames"] += frames
                     self.counters["iterations"] += 1
@@ -487,23 +503,23 @@ class _Training:
                         recent = (recent + [(r[2], bool(r[3])) for r in rows])[-100:]
                     if hasattr(learner, "on_frames"):
                         learner.on_frames(frames)
-                    t_update = time.perf_counter()
                     stats, n_updates = self._learn(batch)
                     self.counters["updates"] += n_updates
-                    update_seconds = time.perf_counter() - t_update
-                    collector.update_policy_weights_()
-                    log = {f"train/{k}": float(v) for k, v in stats.items()}
-                    if recent:
-                        log["train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
-                        log["train/success_rate"] = sum(s for _, s in recent) / len(recent)
-                    log["perf/updates_per_s"] = n_updates / update_seconds if update_seconds > 0 else 0.0
-                    log["perf/frames_per_s"] = frames / max(t_collected - t_last, 1e-9)
-                    t_last = time.perf_counter()
+                    if exp.workers > 1:  # a single collector shares the learner's policy
+                        collector.update_policy_weights_()
+                    t_learned = time.perf_counter()
                     if self.counters["frames"] >= next_log:
                         if exp.log_every_frames:
                             next_log = _next_multiple(self.counters["frames"], exp.log_every_frames)
+                        log = {f"train/{k}": float(v) for k, v in stats.items()}
+                        if recent:
+                            log["train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
+                            log["train/success_rate"] = sum(s for _, s in recent) / len(recent)
+                        update_seconds = split["sampling"] + split["update"]
+                        log["perf/updates_per_s"] = self.counters["updates"] / max(update_seconds, 1e-9)
+                        log["perf/frames_per_s"] = self.counters["frames"] / max(split["env"] + split["collection"], 1e-9)
                         self._log(log)
-                    progress.update(self.counters, log)
+                        progress.update(self.counters, log)
                     if exp.eval_every_frames and self.counters["frames"] >= next_eval:
                         next_eval = _next_multiple(self.counters["frames"], exp.eval_every_frames)
                         result = self._evaluate()
@@ -512,6 +528,8 @@ class _Training:
                     if exp.checkpoint_every_frames and self.counters["frames"] >= next_ckpt:
                         next_ckpt = _next_multiple(self.counters["frames"], exp.checkpoint_every_frames)
                         self._save()
+                    t_last = time.perf_counter()
+                    split["logging"] += t_last - t_learned
                     if signals.received:
                         interrupted = signals.received
                         break
@@ -531,7 +549,8 @@ class _Training:
         if rc.logger.backend == "wandb" and logger is not None:
             logger.experiment.finish()
         result = TrainResult(self.run_dir, path, self.counters["frames"], self.counters["episodes"],
-                             self.counters["updates"], self.counters["seconds"], self.evaluations, interrupted)
+                             self.counters["updates"], self.counters["seconds"], self.evaluations, interrupted,
+                             dict(self.split))
         if interrupted:
             raise TrainingInterrupted(interrupted, result, resume_command(self.run_dir))
         return result
@@ -543,16 +562,26 @@ class _Training:
                            self.evaluations)
 
     def _learn(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], int]:
-        learner, exp = self.learner, self.rc.experiment
+        learner, exp, split = self.learner, self.rc.experiment, self.split
         if not learner.off_policy:
-            return learner.update(batch), 1
+            start = time.perf_counter()
+            stats = learner.update(batch)
+            split["update"] += time.perf_counter() - start
+            return stats, 1
+        start = time.perf_counter()
         self.buffer.extend(batch.select(*TRANSITION_KEYS, strict=False).reshape(-1))
+        split["buffer"] += time.perf_counter() - start
         stats: dict[str, torch.Tensor] = {}
         n = 0
         if self.counters["frames"] >= exp.init_random_frames and len(self.buffer) >= self.buffer.batch_size:
             device = torch.device(self.rc.device)
             for _ in range(exp.updates_per_batch):
-                stats = learner.update(self.buffer.sample().to(device))
+                t0 = time.perf_counter()
+                sample = self.buffer.sample().to(device)
+                t1 = time.perf_counter()
+                stats = learner.update(sample)
+                split["sampling"] += t1 - t0
+                split["update"] += time.perf_counter() - t1
                 n += 1
         return stats, n
 

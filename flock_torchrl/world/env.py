@@ -3,6 +3,7 @@ TorchRL environment."""
 
 from __future__ import annotations
 
+import time
 from typing import Any, Iterable, Mapping, Sequence
 
 import torch
@@ -15,7 +16,7 @@ from ..config import ScenarioConfig, check_scenario, scenario_config
 from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, episode_summary, new_accumulator
 from .spawn import check_spawn_feasible, sample_layout
-from .step import advance, sense
+from .step import advance, noise_draws, sense
 
 ACTION = ("agents", "action")
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
@@ -100,11 +101,12 @@ class FlockingEnv(EnvBase):
         )
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
-        self._advance = torch.compile(advance, dynamic=False) if self.compile_step else advance
+        self._advance = torch.compile(advance, dynamic=False, fullgraph=True) if self.compile_step else advance
         self._make_spec()
         self.world = self._empty_world()
         self._sensed_once = False
         self._restored = False
+        self.busy_seconds = 0.0  # wall time spent in reset and step (a trainer's time split reads it)
         if seed is not None:
             self.set_seed(seed)
 
@@ -185,7 +187,7 @@ class FlockingEnv(EnvBase):
             "terminated": torch.zeros(count, 1, dtype=torch.bool, device=dev),
             "truncated": torch.zeros(count, 1, dtype=torch.bool, device=dev),
         }
-        sensed = sense(state, self._static, self.cfg, self._generator)
+        sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, count, self._generator, dev))
         return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
                           batch_size=[count], device=dev)
 
@@ -214,6 +216,13 @@ class FlockingEnv(EnvBase):
 
     # ------------------------------------------------------------------ TorchRL API
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDict:
+        start = time.perf_counter()
+        try:
+            return self._reset_worlds(tensordict)
+        finally:
+            self.busy_seconds += time.perf_counter() - start
+
+    def _reset_worlds(self, tensordict: TensorDictBase | None) -> TensorDict:
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(self.num_envs).to(self.device)
@@ -232,15 +241,18 @@ class FlockingEnv(EnvBase):
         return self._output()
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
+        start = time.perf_counter()
         action = self._checked_action(tensordict)
         world = self.world
         state = {k: world[k] for k in _STATE_KEYS}
+        normals = noise_draws(self.cfg, self.num_envs, self._generator, self.device)
         state, sensed, episode, reward = self._advance(state, world["sensed"].to_dict(), world["episode"].to_dict(),
-                                                       action, self._static, self.cfg, self._generator)
+                                                       action, self._static, self.cfg, normals)
         self.world = TensorDict({**state, "sensed": sensed, "episode": episode}, batch_size=self.batch_size,
                                 device=self.device)
         out = self._output()
         out.set(("agents", "reward"), reward[..., None])
+        self.busy_seconds += time.perf_counter() - start
         return out
 
     def _checked_action(self, tensordict: TensorDictBase) -> torch.Tensor:
@@ -320,7 +332,7 @@ class FlockingEnv(EnvBase):
             if state[key].shape != self.world[key].shape:
                 raise ValueError(f"place: {key} has shape {list(state[key].shape)}, expected "
                                  f"{list(self.world[key].shape)}")
-        sensed = sense(state, self._static, self.cfg, self._generator)
+        sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, self.num_envs, self._generator, self.device))
         self.world = TensorDict({**state, "episode": new_accumulator(self.num_envs, self.device), "sensed": sensed},
                                 batch_size=self.batch_size, device=self.device)
         self._restored = False

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
-
 import torch
 
 _PI = math.pi
@@ -69,10 +67,11 @@ def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Te
     """Distance along unit rays to circles.
 
     Args:
-        origin: ``[P, 1, 2]``; direction: ``[P, K, 2]`` (unit); circles: ``[P, 1, 3]`` (one circle per row).
+        origin: ``[..., 1, 2]``; direction: ``[..., K, 2]`` (unit); circles: ``[..., 1, 3]`` (one circle
+            per row); leading dimensions broadcast.
 
     Returns:
-        ``[P, K]``: the smallest ``t >= 0`` with ``origin + t direction`` on the circle, 0 when
+        ``[..., K]``: the smallest ``t >= 0`` with ``origin + t direction`` on the circle, 0 when
         the origin is inside (or on) the circle, ``inf`` for a miss.
     """
     centre, radius = circles[..., :2], circles[..., 2]
@@ -131,36 +130,42 @@ def cast_rays(
         none within range.
     """
     direction = torch.stack((torch.cos(angles), torch.sin(angles)), -1)
-    return cast_rays_along(origin, lambda b, n: direction[b, n], obstacles, max_range, angles.shape[-1])
+    return cast_rays_along(origin, direction, obstacles, max_range)
 
 
-def cast_rays_along(origin: torch.Tensor, directions: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
-                    obstacles: Obstacles, max_range: float, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`cast_rays` for ``k`` rays per origin whose unit directions ``directions(b, n)``
-    gives for the origins ``origin[b, n]`` (``[P, k, 2]``).
+def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: Obstacles,
+                    max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`cast_rays` for rays of unit ``directions [B, N, K, 2]`` from ``origin [B, N, 2]``.
 
-    Only the (UAV, obstacle) pairs whose surface lies within ``max_range`` are cast: a beam's
-    hit can be no closer than the surface, so the others cannot return a hit in range. The
-    pairs are gathered into one batch per obstacle shape, so the work follows how many
-    obstacles are near, not B x N x (all obstacles).
+    A beam's hit is no closer than the obstacle's surface, so an obstacle farther than
+    ``max_range`` returns a distance the cap removes anyway. Eager code therefore casts only the
+    (UAV, obstacle) pairs within range, gathered into one batch per obstacle shape (the work
+    follows how many obstacles are near, not B x N x all of them); compiled code
+    (``torch.compile`` needs static shapes) casts every pair by broadcasting. Both give the
+    same distances and indices.
     """
-    b, n = origin.shape[:2]
-    shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
-              (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
+    b, n, k = directions.shape[:3]
     count = obstacles.count
-    t = origin.new_full((b, n, count, k), math.inf)
-    offset = 0
-    for tensors, cast, distance in shapes:  # two obstacle shapes, not a loop over worlds or UAVs
-        m = tensors.shape[-2]
-        if m:
-            near = distance(origin, tensors) < max_range                     # [B, N, M]
-            bi, ni, mi = near.nonzero(as_tuple=True)
-            if bi.numel():
-                t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions(bi, ni), tensors[bi, mi, None])
-        offset += m
     if count == 0:
         return (origin.new_full((b, n, k), max_range),
                 torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
+    shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
+              (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
+    if torch.compiler.is_compiling():
+        # [B, N, 1, 1, 2] rays against [B, 1, M, 1, d] obstacles -> [B, N, M, K]
+        t = torch.cat([cast(origin[:, :, None, None], directions[:, :, None], tensors[:, None, :, None])
+                       for tensors, cast, _ in shapes if tensors.shape[-2]], -2)
+    else:
+        t = origin.new_full((b, n, count, k), math.inf)
+        offset = 0
+        for tensors, cast, distance in shapes:  # two obstacle shapes, not a loop over worlds or UAVs
+            m = tensors.shape[-2]
+            if m:
+                near = distance(origin, tensors) < max_range                     # [B, N, M]
+                bi, ni, mi = near.nonzero(as_tuple=True)
+                if bi.numel():
+                    t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions[bi, ni], tensors[bi, mi, None])
+            offset += m
     t_min, idx = t.min(-2)
     in_range = t_min < max_range
     return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(

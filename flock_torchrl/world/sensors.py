@@ -42,8 +42,7 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
     """
-    return cast_rays_along(position, lambda b, n: beam_directions(heading[b, n], n_beams), obstacles, max_range,
-                           n_beams)
+    return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range)
 
 
 def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -203,22 +202,38 @@ def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_ran
     )
 
 
+def sensor_normals(n_worlds: int, n_uavs: int, n_beams: int, generator: torch.Generator | None = None,
+                   device=None, dtype=torch.float32) -> dict[str, torch.Tensor]:
+    """The standard normal draws of one step's S4 noise, in the order they are taken from
+    ``generator``: ``scan [B, N, n_beams]``, then ``distance``, ``bearing`` and
+    ``heading_difference``, each ``[B, N, N]``. Drawn outside the (compilable) step, so the
+    step itself never touches a generator."""
+    def draw(*shape: int) -> torch.Tensor:
+        return torch.randn(shape, generator=generator, device=device, dtype=dtype)
+
+    return {"scan": draw(n_worlds, n_uavs, n_beams), "distance": draw(n_worlds, n_uavs, n_uavs),
+            "bearing": draw(n_worlds, n_uavs, n_uavs), "heading_difference": draw(n_worlds, n_uavs, n_uavs)}
+
+
 def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: float, distance_std: float,
-                     angle_std: float, max_range: float, generator: torch.Generator | None = None
-                     ) -> tuple[torch.Tensor, Neighbours]:
+                     angle_std: float, max_range: float, generator: torch.Generator | None = None,
+                     normals: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, Neighbours]:
     """S4 noise on raw measurements, before normalisation (specification section 2, "Noise").
 
     Beams ``+ scan_std N(0,1)`` clipped to ``[0, max_range]``; neighbour distance
     ``+ distance_std N(0,1)`` clipped at 0; bearing and heading difference
     ``+ angle_std N(0,1)``, wrapped. Visibility is the camera's detection and stays exact.
-    """
-    def noise(like: torch.Tensor) -> torch.Tensor:
-        return torch.randn(like.shape, generator=generator, device=like.device, dtype=like.dtype)
 
-    beams = (beams + scan_std * noise(beams)).clamp(0.0, max_range)
-    distance = (neighbours.distance + distance_std * noise(neighbours.distance)).clamp_min(0.0)
-    bearing = wrap(neighbours.bearing + angle_std * noise(neighbours.bearing))
-    heading_difference = wrap(neighbours.heading_difference + angle_std * noise(neighbours.heading_difference))
+    Args:
+        normals: the standard normals (:func:`sensor_normals`); drawn from ``generator`` if absent.
+    """
+    if normals is None:
+        b, n = neighbours.distance.shape[:2]
+        normals = sensor_normals(b, n, beams.shape[-1], generator, beams.device, beams.dtype)
+    beams = (beams + scan_std * normals["scan"]).clamp(0.0, max_range)
+    distance = (neighbours.distance + distance_std * normals["distance"]).clamp_min(0.0)
+    bearing = wrap(neighbours.bearing + angle_std * normals["bearing"])
+    heading_difference = wrap(neighbours.heading_difference + angle_std * normals["heading_difference"])
     # The measured offsets follow the measured distance and bearing (relative to the true heading).
     angle = bearing + torch.atan2(neighbours.dy, neighbours.dx) - neighbours.bearing
     noisy = Neighbours(distance, bearing, heading_difference, neighbours.visible,
@@ -241,7 +256,7 @@ def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
 
 __all__ = [
     "Neighbours", "add_sensor_noise", "beam_offsets", "beam_return_offset", "camera_observation",
-    "beam_directions", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "shortest_beams",
-    "smallest",
+    "beam_directions", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
+    "shortest_beams", "smallest",
     "swarm_centre_state", "visibility",
 ]

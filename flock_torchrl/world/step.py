@@ -27,7 +27,7 @@ from .instinct import instinct_command
 from .metrics import closest_pair, step_statistics, update_episode
 from .reward import total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
-                      scan_observation, shortest_beams, swarm_centre_state, visibility)
+                      scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
 
 Tensors = Mapping[str, torch.Tensor]
 
@@ -43,9 +43,21 @@ def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius
     return Obstacles(circles, static.rectangles.expand(b, -1, -1))
 
 
+def noise_draws(cfg: ScenarioConfig, n_worlds: int, generator: torch.Generator | None,
+                device: torch.device | str | None = None) -> dict[str, torch.Tensor] | None:
+    """The S4 noise of one sensing of ``n_worlds`` worlds (``None`` without noise)."""
+    if not cfg.noise:
+        return None
+    return sensor_normals(n_worlds, cfg.n_uavs, cfg.n_beams, generator, device)
+
+
 def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
-          generator: torch.Generator | None = None) -> dict[str, torch.Tensor]:
+          normals: Tensors | None = None) -> dict[str, torch.Tensor]:
     """Everything a step reads from the physical ``state``, for all worlds at once.
+
+    ``normals``: the S4 noise's standard normal draws (:func:`~.sensors.sensor_normals`),
+    required when ``cfg.noise``; drawn by the caller so that this function stays free of
+    random state (and compiles whole).
 
     Returns:
         ``observation [B, N, 17]`` (section 2, noisy in S4), ``state [B, N, 20]`` (the critic's,
@@ -64,9 +76,11 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi))
     sensed_beams, neighbours = beams, true_neighbours
     if cfg.noise:
+        if normals is None:
+            raise ValueError("sense: the scenario has sensor noise; pass its normals (sensors.sensor_normals)")
         sensed_beams, neighbours = add_sensor_noise(
             beams, true_neighbours, scan_std=cfg.noise_scan, distance_std=cfg.noise_distance,
-            angle_std=cfg.noise_angle, max_range=cfg.laser_range, generator=generator)
+            angle_std=cfg.noise_angle, max_range=cfg.laser_range, normals=normals)
     # The shortest beams, selected once: the observation, the instinct and (without noise) the
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
@@ -100,13 +114,15 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
 
 
 def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
-            cfg: ScenarioConfig, generator: torch.Generator | None = None
+            cfg: ScenarioConfig, normals: Tensors | None = None
             ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]:
     """One step of every world under ``action [B, N, 2]`` (already checked and clipped).
 
     Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` also holds
     the executed ``command``, the ``instinct`` flags and ``terminated`` / ``truncated``
-    ``[B, 1]``. Nothing is modified in place.
+    ``[B, 1]``. Nothing is modified in place. ``normals``: the S4 noise of the new state
+    (:func:`sense`). No host synchronisation, no data-dependent shapes: it compiles whole
+    (``torch.compile(advance, fullgraph=True)``).
     """
     if cfg.action_mode == "policy":
         command = action_to_command(action, state["heading"])
@@ -130,7 +146,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         "command": command, "instinct": use, "prev_action": action,
         "has_prev_action": torch.ones_like(state["has_prev_action"]),
     }
-    now = sense(new, static, cfg, generator)
+    now = sense(new, static, cfg, normals)
     prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
     d_collision = now["d_scan1"]
     if cfg.collision_reward_source == "min_uav_scan":
