@@ -8,14 +8,14 @@ baselines, checkpoints, the registry), ``run/`` (training, evaluation), ``report
 (tables, figures, benchmarks); each layer imports only those below it.
 """
 
-from .config import ConfigError, ScenarioConfig, compose, scenario_config
+from .config import ConfigError, ScenarioConfig, TrainConfig, compose, scenario_config
 from .policies import CheckpointError, PolicyHandle, load_policy, make_policy, resolve
 from .run import EVAL_SEED, EvaluationResult, TrainingInterrupted, evaluate, make_train_config, rollout_episode, train
 from .world import FlockingEnv, SpawnError
 
 __all__ = [
     "CheckpointError", "ConfigError", "EVAL_SEED", "EvaluationResult", "FlockingEnv", "PolicyHandle", "ScenarioConfig",
-    "SpawnError", "TrainingInterrupted", "compose", "evaluate", "load_policy", "make_policy", "make_train_config",
-    "resolve", "rollout_episode", "scenario_config", "train",
+    "SpawnError", "TrainConfig", "TrainingInterrupted", "compose", "evaluate", "load_policy", "make_policy",
+    "make_train_config", "resolve", "rollout_episode", "scenario_config", "train",
 ]
 __version__ = "0.2.0"

@@ -1,31 +1,39 @@
-"""The command-line apps: every script is a Hydra app on ``conf/``, run through :func:`run_app`.
+"""The command-line apps: every script is a ``hydra.main`` app on the package's ``conf/``.
 
-``run_app`` gives all of them one behaviour:
+Hydra composes each job (the user's ``--config-dir``, ``hydra.searchpath``, sweepers and
+launchers work as anywhere else); then, for every app alike:
 
-* the configuration of every job (every combination of a ``-m`` sweep) is composed and
-  checked *before* Hydra creates any folder; a bad value prints one line,
-  ``error: scenario.n_uavs: expected an integer, got 'abc'``, and exits with status 2;
-* Hydra's own flags (``--cfg job``, ``--help``, ``--info``) print what would run;
-* errors a job meets later (a refused resume, a busy run folder, a corrupted checkpoint)
-  also print one line and exit 2; a training stopped by SIGINT / SIGTERM exits 130 / 143
-  after printing the command that resumes it.
+* :class:`PreRunCheck`, a Hydra callback configured in each app's YAML, converts and checks
+  the config of every job of a sweep before Hydra creates any folder (the running Hydra's own
+  config loader composes each job; sweeps whose values are not a list, e.g. Optuna's
+  intervals, are checked job by job as they start). A bad value prints one line,
+  ``error: scenario.n_uavs: must be an integer >= 1, got 0``, and exits with status 2.
+  Errors of the composition itself (an unknown choice, a value of the wrong type) are
+  Hydra's own messages (status 1);
+* the job converts its config to the app's schema once (reusing the check's object when it
+  runs in the same process) and runs it; errors it meets later (a busy run folder, a
+  corrupted checkpoint) also print one line and exit 2; a training stopped by a signal exits
+  with 128 + the signal's number after printing the command that resumes it.
 
-``python scripts/train.py resume=<run folder> [budget overrides]`` recomposes the run from
-the overrides it saved (``overrides.yaml``), so ``--cfg job`` shows exactly what continues.
+Each app is a schema (``flock_torchrl.config``), a ``prepare`` that checks what the schema
+cannot (files, checkpoints, the swarm's spawn, memory) and a ``run``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import signal
 import sys
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable
 
+from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from .config import CONF_DIR, ConfigError, compose, config_error_from, resume_mode
+from .config import (CONF_DIR, APP_SCHEMAS, BenchmarkConfig, ConfigError, EvaluateConfig, FiguresConfig,
+                     ReproduceConfig, ScalingConfig, Schema, ShipConfig, TrainConfig, TuneConfig)
 
-HYDRA_INFO_FLAGS = ("--help", "-h", "--hydra-help", "--cfg", "-c", "--info", "-i", "--shell-completion", "-sc",
-                    "--resolve", "--package", "-p")
 EXIT_ERROR = 2
 
 
@@ -33,348 +41,382 @@ class AppError(Exception):
     """An error a job reports as one line (exit status 2)."""
 
 
-def _error(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr, flush=True)
-    return EXIT_ERROR
+def _errors() -> tuple[type[BaseException], ...]:
+    from .policies.checkpoint import CheckpointError
+    from .world.spawn import SpawnError
+
+    return ConfigError, AppError, CheckpointError, SpawnError
 
 
-def _split(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """``(flags, overrides)``: Hydra's dash arguments (with their values) and the overrides."""
-    flags, overrides, take_value = [], [], False
-    for arg in argv:
-        if take_value:
-            flags.append(arg)
-            take_value = False
-        elif arg.startswith("-"):
-            flags.append(arg)
-            take_value = arg in ("--cfg", "-c", "--info", "-i", "--package", "-p", "--config-path", "-cp",
-                                 "--config-name", "-cn", "--config-dir", "-cd", "--shell-completion", "-sc")
-        else:
-            overrides.append(arg)
-    return flags, overrides
+def fail(message: Any) -> None:
+    """Print ``error: <message>`` (one line) and exit with status 2."""
+    print(f"error: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+    raise SystemExit(EXIT_ERROR)
 
 
-def job_overrides(overrides: Sequence[str], multirun: bool) -> list[list[str]]:
-    """The task overrides of every job Hydra would launch (sweeps expanded), without the
-    ``hydra.*`` / ``hydra/...`` ones."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
+# ---------------------------------------------------------------------------- the apps
+@dataclass(frozen=True)
+class App:
+    """A command-line app: its schema, the checks beyond the schema, what it runs."""
 
-    task = [o for o in overrides if not o.lstrip("+~").startswith(("hydra.", "hydra/"))]
-    if not multirun:
-        return [task]
-    parsed = OverridesParser.create().parse_overrides(task)
-    return [job for batch in BasicSweeper.split_arguments(parsed, max_batch_size=None) for job in batch]
+    schema: type[Schema]
+    prepare: Callable[[Any, Path], None]
+    run: Callable[[Any, Path], Any]
 
 
-def output_dir(cfg: DictConfig, multirun: bool) -> Path:
-    """Where Hydra will put a job's outputs (from a config composed with its hydra node)."""
-    hydra = cfg.hydra
-    if multirun:
-        return Path(str(hydra.sweep.dir)) / str(hydra.sweep.subdir)
-    return Path(str(hydra.run.dir))
-
-
-def run_app(config_name: str, job: Callable[[DictConfig], Any], check: Callable[[DictConfig, Path], None],
-            argv: Sequence[str] | None = None, rewrite: Callable[[list[str]], list[str]] | None = None) -> int:
-    """Run a Hydra app on ``conf/<config_name>.yaml``; returns the exit status.
-
-    Args:
-        job: the task function (called by Hydra once per job, in its output folder's context).
-        check: ``check(cfg, output_dir)`` for one job's composed config, before anything runs;
-            raises :class:`ConfigError` (or :class:`AppError`) with the message to print.
-        rewrite: turns the command line into the one Hydra sees (e.g. ``resume=<folder>``).
-    """
-    import hydra
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    try:
-        if rewrite is not None:
-            argv = rewrite(argv)
-        flags, overrides = _split(argv)
-        multirun = any(f in ("-m", "--multirun") for f in flags)
-        if not any(f.split("=")[0] in HYDRA_INFO_FLAGS for f in flags):
-            for overrides_of_job in job_overrides(overrides, multirun):
-                hydra_overrides = [o for o in overrides if o.lstrip("+~").startswith(("hydra.", "hydra/"))]
-                cfg = compose(config_name, [*overrides_of_job, *hydra_overrides], return_hydra_config=True)
-                check(cfg, output_dir(cfg, multirun))
-    except (ConfigError, AppError) as exc:
-        return _error(str(exc))
-    except Exception as exc:  # Hydra's parser and composer
-        return _error(str(config_error_from(exc)))
-
-    status = {"code": 0}
-
-    def task(cfg: DictConfig) -> None:
-        from .policies.checkpoint import CheckpointError
-        from .run.trainer import TrainingInterrupted
-
-        try:
-            job(cfg)
-        except TrainingInterrupted as exc:
-            print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
-                  f"resume with: {exc.command}", file=sys.stderr, flush=True)
-            raise SystemExit(exc.exit_status) from None
-        except KeyboardInterrupt:
-            print("aborted (no checkpoint written since the last periodic one)", file=sys.stderr, flush=True)
-            raise SystemExit(130) from None
-        except (ConfigError, CheckpointError, AppError) as exc:
-            status["code"] = _error(str(exc))
-
-    main = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=config_name)(task)
-    saved = sys.argv
-    sys.argv = [saved[0] if saved else config_name, *argv]
-    try:
-        main()
-    finally:
-        sys.argv = saved
-    return status["code"]
-
-
-# ---------------------------------------------------------------------------- train
-def _rewrite_resume(argv: list[str]) -> list[str]:
-    """``resume=<run folder>``: the run's saved overrides, then the new ones, then
-    ``resume=true`` and the folder itself as Hydra's output folder."""
-    rest, folder = [], None
-    for arg in argv:
-        key, sep, value = arg.partition("=")
-        if sep and key == "resume" and isinstance(resume_mode(value), Path):
-            folder = Path(value)
-        else:
-            rest.append(arg)
-    if folder is None:
-        return argv
-    saved = folder / "overrides.yaml"
-    if not saved.is_file():
-        raise AppError(f"resume={folder}: no run there (no overrides.yaml; a run folder holds config.yaml, "
-                       "overrides.yaml and last.pt)")
-    previous = [str(o) for o in OmegaConf.load(saved)]
-    given = {a.partition("=")[0].lstrip("+~") for a in rest if "=" in a}
-    kept = [o for o in previous if o.partition("=")[0].lstrip("+~") not in given | {"resume"}]
-    return [*kept, *rest, "resume=true", f"hydra.run.dir={folder}"]
-
-
-def _check_train(cfg: DictConfig, run_dir: Path) -> None:
-    from .policies.checkpoint import LAST
-    from .run.trainer import check_train_config
-
-    rc = check_train_config(_task(cfg))
-    exists = (run_dir / LAST).exists()
-    if rc.resume == "never" and exists:
-        raise AppError(f"{run_dir} already holds a checkpoint; pass resume=true (or resume={run_dir}) to continue "
-                       "it, or change the run's overrides (nothing was changed)")
-    if rc.resume == "always" and not exists:
-        raise AppError(f"resume=true, but there is no checkpoint at {run_dir / LAST}")
-
-
-def _task(cfg: DictConfig) -> DictConfig:
-    """The task part of a config composed with its hydra node."""
-    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]) if "hydra" in cfg else cfg
-    return task
-
-
-def _train_job(cfg: DictConfig) -> None:
-    import logging
-
+def _set_threads(threads: int) -> None:
     import torch
+
+    if threads:
+        torch.set_num_threads(int(threads))
+
+
+def _say(message: str) -> None:
+    print(message, flush=True)
+
+
+# -- train
+def _prepare_train(cfg: TrainConfig, out: Path) -> None:
+    from .run.trainer import prepare
+
+    prepare(cfg, out)
+
+
+def _run_train(cfg: TrainConfig, out: Path) -> float:
+    import logging
 
     from .run.trainer import train
 
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # no "Initialized LazyTensorStorage" lines
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
-    result = train(cfg)
-    if sum(result.split.values()) > 0:
-        print(result.split_line(), flush=True)
-    print(f"checkpoint: {result.checkpoint} ({result.frames} frames, {result.episodes} episodes, "
-          f"{result.updates} updates, {result.seconds:.0f} s)", flush=True)
-    if result.evaluations:
-        last = result.evaluations[-1]
-        print(f"evaluation ({int(last['n_episodes'])} episodes, seed {cfg.eval_seed}, deterministic): "
-              f"success {last['success']:.3f}, safe_success {last['safe_success']:.3f}, "
-              f"d_min_uav {last['d_min_uav']:.3f}, d_c {last['d_c']:.3f}, t_goal {last['t_goal']:.2f} s", flush=True)
+    _set_threads(cfg.threads)
+    result = train(cfg, out)
+    if any(result.split.values()):
+        _say(result.split_line())
+    _say(f"checkpoint: {result.checkpoint} ({result.frames} frames, {result.episodes} episodes, "
+         f"{result.updates} updates, {result.seconds:.0f} s)")
+    last = result.evaluations[-1] if result.evaluations else {}
+    if last:
+        _say(f"evaluation ({int(last['n_episodes'])} episodes, seed {cfg.eval_seed}, deterministic): "
+             f"success {last['success']:.3f}, safe_success {last['safe_success']:.3f}, "
+             f"d_min_uav {last['d_min_uav']:.3f}, d_c {last['d_c']:.3f}, t_goal {last['t_goal']:.2f} s")
+    return float(last.get(cfg.objective, float("nan")))
 
 
-def train_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/train.py`` / ``flock-train``."""
-    return run_app("train", _train_job, _check_train, argv, rewrite=_rewrite_resume)
+# -- evaluate
+def _evaluate_handles(cfg: EvaluateConfig) -> list:
+    from .policies.registry import resolve
+
+    handles = resolve(cfg.checkpoint or cfg.policy.id, cfg.scenario.reading, cfg.checkpoints_dir,
+                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy)
+    if cfg.checkpoint and handles[0].id != cfg.policy.id:
+        raise ConfigError("policy", f"{cfg.checkpoint} holds {handles[0].name}; pass policy={handles[0].id} so that "
+                                    "its world is composed")
+    return handles
 
 
-# ---------------------------------------------------------------------------- evaluate
-def _check_evaluate(cfg: DictConfig, out: Path) -> None:
-    from .run.evaluation import check_evaluate_config
+def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
+    from .world.spawn import check_spawn_feasible
 
-    check_evaluate_config(_task(cfg))
-
-
-def _evaluate_job(cfg: DictConfig) -> None:
-    from hydra.core.hydra_config import HydraConfig
-
-    from .run.evaluation import evaluate_app
-
-    evaluate_app(cfg, Path(HydraConfig.get().runtime.output_dir))
+    check_spawn_feasible(cfg.scenario)
+    _evaluate_handles(cfg)
 
 
-def evaluate_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/evaluate.py`` / ``flock-evaluate``."""
-    return run_app("evaluate", _evaluate_job, _check_evaluate, argv)
+def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
+    from .run.results import EvaluationResult, write_result
+    from .run.rollout import evaluate_handle
+
+    _set_threads(cfg.threads)
+    results = []
+    for handle in _evaluate_handles(cfg):
+        results.append(evaluate_handle(handle, cfg.scenario, None, cfg.episodes, cfg.seed, cfg.device))
+        _say(f"{results[-1]} [{handle.origin}]")
+    result = EvaluationResult.pooled(results)
+    if len(results) > 1:
+        _say(f"pooled over {len(results)} checkpoints: {result}")
+    paths = write_result(result, out, dataclasses.asdict(cfg))
+    _say("wrote " + " and ".join(str(p) for p in paths))
+    return result.rate("success").rate
 
 
-# ---------------------------------------------------------------------------- reproduce, figures
-def _hydra_out() -> Path:
-    from hydra.core.hydra_config import HydraConfig
+# -- reproduce, figures, scaling
+def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
+    from .report.reproduce import check_table_inputs
 
-    return Path(HydraConfig.get().runtime.output_dir)
-
-
-def _check_common(cfg: DictConfig) -> None:
-    from .config import check_device, check_seed
-
-    check_seed(cfg.seed)
-    check_device(cfg.device)
-    if not (isinstance(cfg.threads, int) and cfg.threads >= 0):
-        raise ConfigError("threads", f"must be an integer >= 0, got {cfg.threads!r}")
+    check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only)
 
 
-def _check_reproduce(cfg: DictConfig, out: Path) -> None:
-    from .config import ReproduceConfig, to_object
-    from .report.tables import TABLE_NUMBERS, table_entries
+def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
+    from .report.reproduce import reproduce
 
-    checked = to_object(_task(cfg), ReproduceConfig, "")
-    if checked.table not in TABLE_NUMBERS:
-        raise ConfigError("table", f"must be one of {', '.join(map(str, TABLE_NUMBERS))}, got {checked.table}")
-    if checked.episodes < 1:
-        raise ConfigError("episodes", f"must be an integer >= 1, got {checked.episodes}")
-    names = {e.policy for e in table_entries(checked.table)}
-    unknown = sorted(set(checked.only) - names)
-    if unknown:
-        raise ConfigError("only", f"{unknown} are not rows of Table {checked.table}; rows: {sorted(names)}")
-    _check_common(cfg)
+    _set_threads(cfg.threads)
+    result = reproduce(cfg.table, cfg.scenario.reading, episodes=cfg.episodes, seed=cfg.seed, device=cfg.device,
+                       checkpoints_dir=cfg.checkpoints_dir, out_dir=out, only=list(cfg.only) or None,
+                       episodes_csv=cfg.episodes_csv, paper_recipe_dir=cfg.paper_recipe_dir, log=_say)
+    if result["failed"]:
+        raise AppError(f"Table {cfg.table}: rows not evaluated: {', '.join(result['failed'])} (see above)")
 
 
-def _reproduce_job(cfg: DictConfig) -> None:
-    import torch
+def _prepare_figures(cfg: FiguresConfig, out: Path) -> None:
+    from .report.figures import check_figure_inputs
 
-    from .report.tables import reproduce
-
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
-    out = reproduce(int(cfg.table), str(cfg.scenario.reading), episodes=int(cfg.episodes), seed=int(cfg.seed),
-                    device=str(cfg.device), checkpoints_dir=str(cfg.checkpoints_dir), out_dir=_hydra_out(),
-                    only=list(cfg.only) or None, episodes_csv=bool(cfg.episodes_csv),
-                    paper_run=cfg.paper_run, log=lambda m: print(m, flush=True))
-    if out["failed"]:
-        raise AppError(f"Table {cfg.table}: rows not evaluated: {', '.join(out['failed'])} (see above)")
+    check_figure_inputs(cfg.scenario.reading, cfg.figs, cfg.checkpoints_dir)
 
 
-def reproduce_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/reproduce.py`` / ``flock-reproduce``."""
-    return run_app("reproduce", _reproduce_job, _check_reproduce, argv)
-
-
-def _check_figures(cfg: DictConfig, out: Path) -> None:
-    figs = list(cfg.figs)
-    if not figs or any(f not in (4, 5, 6) for f in figs):
-        raise ConfigError("figs", f"a list of 4, 5 and 6, got {figs}")
-    _check_common(cfg)
-
-
-def _figures_job(cfg: DictConfig) -> None:
-    import torch
-
+def _run_figures(cfg: FiguresConfig, out: Path) -> None:
     from .report.figures import make_figures
 
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
-    make_figures(str(cfg.scenario.reading), _hydra_out(), figs=list(cfg.figs), checkpoints_dir=str(cfg.checkpoints_dir),
-                 seed=int(cfg.seed), device=str(cfg.device), paper_run=cfg.paper_run, log=lambda m: print(m, flush=True))
+    _set_threads(cfg.threads)
+    make_figures(cfg.scenario.reading, out, figs=list(cfg.figs), checkpoints_dir=cfg.checkpoints_dir, seed=cfg.seed,
+                 device=cfg.device, paper_recipe_dir=cfg.paper_recipe_dir, log=_say)
 
 
-def figures_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/figures.py`` / ``flock-figures``."""
-    return run_app("figures", _figures_job, _check_figures, argv)
+def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
+    from .policies.registry import resolve
+
+    resolve(cfg.policy_name, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device)
 
 
-# ---------------------------------------------------------------------------- ship
-def _check_ship(cfg: DictConfig, out: Path) -> None:
-    runs = Path(str(cfg.runs_dir)) / str(cfg.experiment) / str(cfg.scenario.reading)
-    if not runs.is_dir():
-        raise AppError(f"no runs to ship under {runs}")
+def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
+    from .report.scaling import scaling
+
+    _set_threads(cfg.threads)
+    scaling(cfg.policy_name, cfg.scenario.reading, list(cfg.sizes), cfg.episodes, cfg.seed, cfg.checkpoints_dir,
+            cfg.device, out, log=_say)
 
 
-def _ship_job(cfg: DictConfig) -> None:
+# -- ship, tune, benchmark
+def _prepare_ship(cfg: ShipConfig, out: Path) -> None:
+    folders = [Path(cfg.runs_dir) / e / cfg.scenario.reading for e in (cfg.experiment, cfg.paper_experiment)]
+    if not any(f.is_dir() for f in folders):
+        raise AppError(f"no runs to ship under {' or '.join(map(str, folders))}")
+
+
+def _run_ship(cfg: ShipConfig, out: Path) -> None:
     from .run.shipping import ship_checkpoints
 
-    ship_checkpoints(str(cfg.scenario.reading), str(cfg.experiment), Path(str(cfg.runs_dir)),
-                     Path(str(cfg.checkpoints_dir)), str(cfg.paper_experiment), log=lambda m: print(m, flush=True))
+    ship_checkpoints(cfg.scenario.reading, cfg.experiment, Path(cfg.runs_dir), Path(cfg.checkpoints_dir),
+                     cfg.paper_experiment, Path(cfg.paper_recipe_dir), log=_say)
 
 
-def ship_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/ship.py``: the named step that updates ``checkpoints/``."""
-    return run_app("ship", _ship_job, _check_ship, argv)
-
-
-# ---------------------------------------------------------------------------- tune, benchmark
-def _check_tune(cfg: DictConfig, out: Path) -> None:
+def _prepare_tune(cfg: TuneConfig, out: Path) -> None:
     from .report.tuning import GRIDS
 
     unknown = sorted(set(cfg.controllers) - set(GRIDS))
     if unknown:
         raise ConfigError("controllers", f"unknown {unknown}; known: {sorted(GRIDS)}")
-    if cfg.episodes < 1:
-        raise ConfigError("episodes", f"must be an integer >= 1, got {cfg.episodes}")
 
 
-def _tune_job(cfg: DictConfig) -> None:
+def _run_tune(cfg: TuneConfig, out: Path) -> None:
     from .report.tuning import tune_app
 
-    tune_app(cfg, _hydra_out(), log=lambda m: print(m, flush=True))
+    _set_threads(cfg.threads)
+    tune_app(cfg, out, log=_say)
 
 
-def tune_baselines_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/tune_baselines.py``."""
-    return run_app("tune_baselines", _tune_job, _check_tune, argv)
+def _nothing(cfg: Any, out: Path) -> None:
+    pass
 
 
-def _check_benchmark(cfg: DictConfig, out: Path) -> None:
-    from .config import check_device
-
-    check_device(cfg.device)
-
-
-def _benchmark_job(cfg: DictConfig) -> None:
+def _run_benchmark(cfg: BenchmarkConfig, out: Path) -> None:
     from .report.benchmark import benchmark_app
 
-    benchmark_app(cfg, _hydra_out())
+    benchmark_app(cfg, out)
 
 
-def benchmark_main(argv: Sequence[str] | None = None) -> int:
+APPS: dict[str, App] = {
+    "train": App(TrainConfig, _prepare_train, _run_train),
+    "evaluate": App(EvaluateConfig, _prepare_evaluate, _run_evaluate),
+    "reproduce": App(ReproduceConfig, _prepare_reproduce, _run_reproduce),
+    "figures": App(FiguresConfig, _prepare_figures, _run_figures),
+    "scaling": App(ScalingConfig, _prepare_scaling, _run_scaling),
+    "ship": App(ShipConfig, _prepare_ship, _run_ship),
+    "tune_baselines": App(TuneConfig, _prepare_tune, _run_tune),
+    "benchmark": App(BenchmarkConfig, _nothing, _run_benchmark),
+}
+assert set(APPS) == set(APP_SCHEMAS)
+
+
+# ---------------------------------------------------------------------------- checked once
+# Configs checked by PreRunCheck in this process, by their YAML: the job that runs one of them
+# takes the checked object instead of converting and checking it again.
+_CHECKED: dict[str, Schema] = {}
+
+
+def _task_yaml(cfg: DictConfig) -> str:
+    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]) if "hydra" in cfg else cfg
+    return OmegaConf.to_yaml(task, resolve=True)
+
+
+def checked(app: str, cfg: DictConfig, out: Path) -> Schema:
+    """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error)."""
+    obj = APPS[app].schema.from_config(cfg)
+    APPS[app].prepare(obj, out)
+    return obj
+
+
+def _guard(fn: Callable[[], Any]) -> Any:
+    """Run ``fn``; report this project's errors as one line with exit status 2."""
+    try:
+        return fn()
+    except _errors() as exc:
+        fail(exc)
+
+
+class PreRunCheck(Callback):
+    """Check every job of a run or a sweep before Hydra creates anything (``hydra.callbacks``)."""
+
+    def __init__(self, app: str) -> None:
+        if app not in APPS:
+            raise ValueError(f"unknown app {app!r}; known: {sorted(APPS)}")
+        self.app = app
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        out = Path(str(config.hydra.run.dir))
+        _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out))
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        _guard(lambda: _check_launcher(config))
+        jobs = sweep_jobs(config)
+        if jobs is None:  # not a list of values (an Optuna interval ...): each job checks itself
+            return
+        from hydra.core.global_hydra import GlobalHydra
+
+        loader = GlobalHydra.instance().config_loader()
+        for overrides in jobs:
+            job = loader.load_sweep_config(config, list(overrides))
+            out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
+            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out))
+
+
+def sweep_jobs(config: DictConfig) -> list[list[str]] | None:
+    """The task overrides of every job of a sweep whose values are lists or ranges (the
+    cartesian product, as Hydra's basic sweeper makes it); ``None`` for another sweeper or a
+    sweep it cannot enumerate. Only Hydra's public override parser is used."""
+    import itertools
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    sweeper = str(config.hydra.sweeper.get("_target_", ""))
+    if not sweeper.endswith("BasicSweeper"):
+        return None
+    parsed = OverridesParser.create().parse_overrides([str(o) for o in config.hydra.overrides.task])
+    axes = []
+    for override in parsed:
+        if override.is_hydra_override():
+            continue
+        if not override.is_sweep_override():
+            axes.append([override.input_line])
+        elif override.is_discrete_sweep() and not override.value_type.name.startswith("GLOB"):
+            key = override.get_key_element()
+            axes.append([f"{key}={value}" for value in override.sweep_string_iterator()])
+        else:
+            return None
+    return [list(job) for job in itertools.product(*axes)]
+
+
+_LAUNCHER_EXTRAS = {"hydra_plugins.hydra_submitit_launcher": "slurm", "hydra_plugins.hydra_joblib_launcher": "",
+                    "hydra_plugins.hydra_optuna_sweeper": "optuna"}
+
+
+def _check_launcher(config: DictConfig) -> None:
+    """A launcher or sweeper whose plugin is not installed: say which extra installs it."""
+    import importlib.util
+
+    for node in ("launcher", "sweeper"):
+        target = str(config.hydra[node].get("_target_", ""))
+        module = ".".join(target.split(".")[:2])
+        if module.startswith("hydra_plugins.") and importlib.util.find_spec(module) is None:
+            extra = _LAUNCHER_EXTRAS.get(module)
+            hint = f"pip install 'flock_torchrl[{extra}]'" if extra else f"pip install {module.split('.')[1]}"
+            raise AppError(f"hydra/{node}: the plugin {module} is not installed ({hint})")
+
+
+# ---------------------------------------------------------------------------- the mains
+def _task(app: str) -> Callable[[DictConfig], Any]:
+    def task(cfg: DictConfig) -> Any:
+        from hydra.core.hydra_config import HydraConfig
+
+        from .run.trainer import TrainingInterrupted
+
+        out = Path(HydraConfig.get().runtime.output_dir)
+        obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
+        try:
+            return _guard(lambda: APPS[app].run(obj, out))
+        except TrainingInterrupted as exc:
+            print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
+                  f"resume with: {exc.command}", file=sys.stderr, flush=True)
+            raise SystemExit(exc.exit_status) from None
+
+    task.__name__ = app
+    return task
+
+
+def _early_signals() -> None:
+    """Until the app installs its own handlers: a stop signal ends the process with one line."""
+    from .run.trainer import STOP_SIGNALS, Stopped
+
+    def stop(signum: int, frame: Any) -> None:
+        raise Stopped(signum)
+
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, stop)
+
+
+def main(app: str) -> Any:
+    """Run the Hydra app ``app`` on ``sys.argv`` (a console script or ``scripts/<app>.py``)."""
+    import hydra
+
+    from .run.trainer import Stopped
+
+    try:
+        _early_signals()
+        return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
+    except Stopped as stop:
+        print(f"stopped by {stop}: nothing is written before training starts; a checkpoint, if any, is kept",
+              file=sys.stderr, flush=True)
+        raise SystemExit(128 + stop.signum) from None
+
+
+def train_main() -> Any:
+    """``scripts/train.py`` / ``flock-train``."""
+    return main("train")
+
+
+def evaluate_main() -> Any:
+    """``scripts/evaluate.py`` / ``flock-evaluate``."""
+    return main("evaluate")
+
+
+def reproduce_main() -> Any:
+    """``scripts/reproduce.py`` / ``flock-reproduce``."""
+    return main("reproduce")
+
+
+def figures_main() -> Any:
+    """``scripts/figures.py`` / ``flock-figures``."""
+    return main("figures")
+
+
+def scaling_main() -> Any:
+    """``scripts/scaling.py`` / ``flock-scaling``."""
+    return main("scaling")
+
+
+def ship_main() -> Any:
+    """``scripts/ship.py``: the named step that updates ``checkpoints/``."""
+    return main("ship")
+
+
+def tune_baselines_main() -> Any:
+    """``scripts/tune_baselines.py``."""
+    return main("tune_baselines")
+
+
+def benchmark_main() -> Any:
     """``scripts/benchmark.py`` / ``make benchmark``."""
-    return run_app("benchmark", _benchmark_job, _check_benchmark, argv)
+    return main("benchmark")
 
 
-def _check_scaling(cfg: DictConfig, out: Path) -> None:
-    if not list(cfg.sizes) or any(not isinstance(n, int) or n < 1 for n in cfg.sizes):
-        raise ConfigError("sizes", f"a list of swarm sizes >= 1, got {list(cfg.sizes)}")
-    if cfg.episodes < 1:
-        raise ConfigError("episodes", f"must be an integer >= 1, got {cfg.episodes}")
-    _check_common(cfg)
-
-
-def _scaling_job(cfg: DictConfig) -> None:
-    import torch
-
-    from .report.scaling import scaling
-
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
-    scaling(str(cfg.policy_name), str(cfg.scenario.reading), list(cfg.sizes), int(cfg.episodes), int(cfg.seed),
-            str(cfg.checkpoints_dir), str(cfg.device), _hydra_out(), log=lambda m: print(m, flush=True))
-
-
-def scaling_main(argv: Sequence[str] | None = None) -> int:
-    """``scripts/scaling.py`` / ``make scaling``."""
-    return run_app("scaling", _scaling_job, _check_scaling, argv)
-
-
-__all__ = ["AppError", "benchmark_main", "scaling_main", "evaluate_main", "figures_main", "ship_main", "tune_baselines_main", "job_overrides", "reproduce_main", "run_app", "train_main"]
+__all__ = ["APPS", "App", "AppError", "PreRunCheck", "benchmark_main", "checked", "evaluate_main", "fail",
+           "figures_main", "main", "reproduce_main", "scaling_main", "ship_main", "sweep_jobs",
+           "train_main", "tune_baselines_main"]

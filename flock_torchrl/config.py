@@ -1,30 +1,35 @@
-"""Configuration: the schema of every Hydra group, and the one composer.
+"""Configuration: the schema of every Hydra group and app, and the one composer.
 
 Every value lives once, in the YAML files under ``conf/``; the dataclasses below give each
-group its fields, types and checks (their fields are ``MISSING``: a YAML that forgets one
-fails when it is composed). :func:`register_schemas` puts them in Hydra's ConfigStore, where
-each group's YAML names its schema in its defaults list, so Hydra itself type-checks every
-file, every composition and every command-line override.
+group and each app its fields and types (fields are ``MISSING``: a YAML that forgets one fails
+when it is composed) and one :meth:`~Schema.check` that validates what a type cannot say
+(ranges, choices, consistency), raising :class:`ConfigError` naming the dotted key, e.g.
+``scenario.n_uavs: must be an integer >= 1, got 0``. :func:`register_schemas` puts them in
+Hydra's ConfigStore as root configs (``scenario_schema``, ``train_schema`` ...) that the YAMLs
+name in their defaults lists, so Hydra type-checks every file, every composition and every
+command-line override, and the schemas never show up as choices of a group.
 
-:func:`compose` is the only way configs are built, for the scripts (``hydra.main``) and for
-Python callers alike: it runs Hydra's compose API on the same ``conf/``. What
-``--cfg job`` prints is therefore what runs, and what a run saves as ``config.yaml``.
+A config becomes a checked object exactly once: :meth:`Schema.from_config` converts Hydra's
+composed ``DictConfig`` (``OmegaConf.to_object``) and runs ``check()``; the checked object is
+what the app runs. A checked object remembers it (``is_checked``), so :class:`FlockingEnv`
+does not check a scenario again.
 
-Checks that need more than a type (ranges, enumerations, feasibility) live in the
-``check_*`` functions; each raises :class:`ConfigError` naming the dotted key, e.g.
-``scenario.n_uavs: must be an integer >= 1, got 0``. See ``docs/specification.md`` for what
-every scenario field means.
+:func:`compose` is Hydra's compose API on the package's ``conf/`` for Python callers
+(``make_train_config``, ``FlockingEnv("train", ...)``); the scripts use ``hydra.main`` on the
+same folder, with the user's ``--config-dir`` and ``hydra.searchpath`` added by Hydra itself.
+See ``docs/specification.md`` for what every scenario field means.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib.util
 import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence
+from typing import Any, ClassVar, Dict, List, Mapping, Optional, Sequence, TypeVar
 
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -54,36 +59,204 @@ def config_dir() -> Path:
 CONF_DIR = config_dir()
 
 
+def shipped_checkpoints_dir() -> Path:
+    """The shipped checkpoints: packaged as ``flock_torchrl.checkpoints`` in a wheel (the
+    repository's ``checkpoints/`` in an editable install), else the source checkout's. It is the
+    default of ``checkpoints_dir`` (conf/world.yaml), so the apps find them from any folder."""
+    spec = importlib.util.find_spec("flock_torchrl.checkpoints")
+    if spec is not None and spec.submodule_search_locations:
+        for location in spec.submodule_search_locations:
+            if Path(location).is_dir():
+                return Path(location)
+    return Path(__file__).resolve().parent.parent / "checkpoints"
+
+
 # ---------------------------------------------------------------------------- resolvers
+# A folder name made from values: letters, digits and ``._+-`` only (no separators, no
+# quoting needed on a command line or in a Hydra override).
+_UNSAFE = re.compile(r"[^A-Za-z0-9._+-]")
+
+
+def safe_name(text: Any) -> str:
+    """``text`` as one plain folder name: other characters become ``_``; never ``.`` or ``..``."""
+    name = _UNSAFE.sub("_", str(text))
+    return name if name.strip(".") else name.replace(".", "_")
+
+
+def run_name(base: Any, overrides: Any = "") -> str:
+    """``seed0`` or ``seed0__algo.lr_actor-0.001__scenario.tau_v-0.5``: the folder of one run.
+
+    ``overrides`` is Hydra's ``override_dirname`` (``key-value`` pairs joined by ``__``, the
+    task overrides not already in the path, sorted; conf/train.yaml sets the separators so that
+    a folder name needs no quoting in a Hydra override). Anything else becomes ``_``.
+    """
+    overrides = str(overrides or "")
+    return safe_name(str(base) + (f"__{overrides}" if overrides else ""))
+
+
 def _register_resolvers() -> None:
     # ``${pi:0.5}`` = 0.5 pi: angles written as the paper writes them.
     if not OmegaConf.has_resolver("pi"):
         OmegaConf.register_new_resolver("pi", lambda k=1.0: float(k) * math.pi)
-    # ``${flock.run_name:seed0,<override_dirname>}``: a run folder name that shows its overrides.
     if not OmegaConf.has_resolver("flock.run_name"):
         OmegaConf.register_new_resolver("flock.run_name", run_name)
-
-
-def run_name(base: Any, overrides: Any = "") -> str:
-    """``seed0`` or ``seed0__algo.lr_actor=0.001,scenario.tau_v=0.5``: the folder of one run.
-
-    ``overrides`` is Hydra's ``override_dirname`` (the task overrides that are not already in
-    the path, sorted); slashes would nest folders, so they become ``-``.
-    """
-    overrides = str(overrides or "")
-    name = str(base) + (f"__{overrides}" if overrides else "")
-    return name.replace("/", "-")
+    if not OmegaConf.has_resolver("flock.shipped_checkpoints"):
+        OmegaConf.register_new_resolver("flock.shipped_checkpoints", lambda: str(shipped_checkpoints_dir()))
+    if not OmegaConf.has_resolver("flock.safe_name"):
+        OmegaConf.register_new_resolver("flock.safe_name", safe_name)
+    # ``${flock.concat:[a,b],${some_list}}``: lists joined (one list written once, used twice).
+    if not OmegaConf.has_resolver("flock.concat"):
+        OmegaConf.register_new_resolver("flock.concat", lambda *lists: [x for items in lists for x in items])
 
 
 _register_resolvers()
 
 
-# ---------------------------------------------------------------------------- schemas
+# ---------------------------------------------------------------------------- checks
+def _fail(key: str, message: str) -> None:
+    raise ConfigError(key, message)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def positive(key: str, value: Any, maximum: float = math.inf) -> None:
+    if not (_is_number(value) and 0 < value <= maximum):
+        bound = "" if math.isinf(maximum) else f" and <= {maximum:g}"
+        _fail(key, f"must be a positive finite number{bound}, got {value!r}")
+
+
+def non_negative(key: str, value: Any, maximum: float = math.inf) -> None:
+    if not (_is_number(value) and 0 <= value <= maximum):
+        bound = "" if math.isinf(maximum) else f" and <= {maximum:g}"
+        _fail(key, f"must be a finite number >= 0{bound}, got {value!r}")
+
+
+def count(key: str, value: Any, minimum: int = 1, maximum: int | None = None) -> None:
+    if not (_is_int(value) and value >= minimum and (maximum is None or value <= maximum)):
+        bound = "" if maximum is None else f" and <= {maximum}"
+        _fail(key, f"must be an integer >= {minimum}{bound}, got {value!r}")
+
+
+def fraction(key: str, value: Any, low_open: bool = True) -> None:
+    ok = _is_number(value) and (0 < value if low_open else 0 <= value) and value <= 1
+    if not ok:
+        _fail(key, f"must lie in {'(0' if low_open else '[0'}, 1], got {value!r}")
+
+
+def choice(key: str, value: Any, choices: Sequence[Any]) -> None:
+    if value not in choices:
+        _fail(key, f"must be one of {', '.join(map(str, choices))}; got {value!r}")
+
+
+def folder_name(key: str, value: Any) -> None:
+    """A value that becomes one folder of a path: no separators, no ``..``."""
+    if not (isinstance(value, str) and value and safe_name(value) == value):
+        _fail(key, f"becomes a folder name, so it may hold only letters, digits and ._+- (and not be '.' or "
+                   f"'..'); got {value!r}")
+
+
+# Seeds: the trainer derives env seeds as seed * 1000 + worker, within torch's 64-bit range.
+MAX_SEED = 2**32 - 1
+
+
+def check_seed(key: str, value: Any) -> None:
+    count(key, value, 0, MAX_SEED)
+
+
+def check_device(key: str, device: Any) -> None:
+    """``cpu``, ``cuda``, ``cuda:<k>`` or ``mps`` on a machine that has it."""
+    import torch
+
+    text = str(device)
+    if not re.fullmatch(r"cpu|cuda(:\d+)?|mps", text):
+        _fail(key, f"must be cpu, cuda or cuda:<index>, got {text!r}")
+    if text.startswith("cuda"):
+        if not torch.cuda.is_available():
+            _fail(key, f"{text!r} asked for, but this torch build ({torch.__version__}) sees no CUDA device")
+        index = int(text.split(":")[1]) if ":" in text else 0
+        if index >= torch.cuda.device_count():
+            _fail(key, f"{text!r} asked for, but only {torch.cuda.device_count()} CUDA device(s) exist")
+    if text == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
+        _fail(key, "'mps' asked for, but it is not available")
+
+
+def check_threads(key: str, value: Any) -> None:
+    count(key, value, 0, 1024)
+
+
+def _key(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+S = TypeVar("S", bound="Schema")
+
+
+class Schema:
+    """What every schema dataclass can do: be built from a composed config and checked once."""
+
+    prefix: ClassVar[str] = ""
+
+    def check(self, prefix: str | None = None) -> "Schema":  # pragma: no cover - every schema overrides it
+        raise NotImplementedError
+
+    @property
+    def is_checked(self) -> bool:
+        return bool(self.__dict__.get("_checked"))
+
+    def _mark_checked(self: S) -> S:
+        object.__setattr__(self, "_checked", True)
+        return self
+
+    @classmethod
+    def from_config(cls: type[S], node: Any, prefix: str | None = None) -> S:
+        """``node`` (DictConfig, mapping or instance) as a checked instance of this schema.
+
+        A wrong type, an unknown key or a missing value becomes a :class:`ConfigError` under
+        ``prefix`` (default: the schema's own, e.g. ``scenario``)."""
+        prefix = cls.prefix if prefix is None else prefix
+        if isinstance(node, cls):
+            obj = node
+        else:
+            try:
+                if isinstance(node, DictConfig):
+                    if "hydra" in node:
+                        node = OmegaConf.masked_copy(node, [k for k in node if k != "hydra"])
+                    node = OmegaConf.to_container(node, resolve=True)
+                elif dataclasses.is_dataclass(node):
+                    node = dataclasses.asdict(node)
+                obj = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), node))
+            except OmegaConfBaseException as exc:
+                raise config_error(exc, prefix) from exc
+        if not obj.is_checked:
+            obj.check(prefix)
+        return obj
+
+
+def config_error(exc: BaseException, prefix: str = "") -> ConfigError:
+    """One readable :class:`ConfigError` from an OmegaConf exception (its key and message)."""
+    if isinstance(exc, ConfigError):
+        return exc
+    key = str(getattr(exc, "full_key", "") or "")
+    text = str(getattr(exc, "msg", "") or exc).strip().splitlines()
+    message = text[0] if text else type(exc).__name__
+    full = key if not prefix or key.startswith(prefix) else _key(prefix, key) if key else prefix
+    return ConfigError(full, message)
+
+
+# ---------------------------------------------------------------------------- group schemas
 @dataclass
-class ScenarioConfig:
+class ScenarioConfig(Schema):
     """The world (docs/specification.md sections 1-6, 9). Values: ``conf/scenario/*.yaml``
     (the world), ``conf/reading/*.yaml`` (the reading's fields), ``conf/policy/*.yaml``
     (the policy's sensing, instinct and reward variant)."""
+
+    prefix: ClassVar[str] = "scenario"
 
     name: str = MISSING
     reading: str = MISSING                   # literal | paper_fit (section 9)
@@ -154,6 +327,74 @@ class ScenarioConfig:
             scale = max(scale, 1.0)
         return self.spawn_radius * math.sqrt(scale)
 
+    def check(self, prefix: str | None = None) -> "ScenarioConfig":
+        """Every field's range; whether the starts can always be placed is the world's question
+        (:func:`flock_torchrl.world.spawn.check_spawn_feasible`, asked once per scenario)."""
+        p = self.prefix if prefix is None else prefix
+        k = lambda name: _key(p, name)  # noqa: E731
+        choice(k("reading"), self.reading, READINGS)
+        # Bounds keep a config from asking for more than any machine holds (the world's
+        # [B, N, N] pairwise terms, the episode loop): far above every use, well below overflow.
+        count(k("n_uavs"), self.n_uavs, 1, 2000)
+        count(k("max_steps"), self.max_steps, 1, 10**7)
+        count(k("n_beams"), self.n_beams, 1, 3600)
+        for name in ("n_scan", "n_cam"):
+            count(k(name), getattr(self, name), 1, 100)
+        count(k("spawn_max_tries"), self.spawn_max_tries, 1, 10**5)
+        count(k("spawn_reference_uavs"), self.spawn_reference_uavs, 1)
+        count(k("n_moving"), self.n_moving, 0, 1000)
+        # Lengths and speeds against the world: at most 1e6 m and 1e4 s, so float32 positions
+        # stay exact to about a metre's millionth over an episode.
+        for name in ("dt", "tau_v"):
+            positive(k(name), getattr(self, name), 1e4)
+        for name in ("v_max", "goal_radius", "camera_range", "laser_range", "area_size", "goal_scale",
+                     "spawn_radius", "rep_range"):
+            positive(k(name), getattr(self, name), 1e6)
+        positive(k("fov"), self.fov, 2 * math.pi + 1e-9)
+        for name in ("collision_distance", "safe_distance", "rep_gain", "heading_speed_threshold",
+                     "spawn_separation", "spawn_clearance", "d_env", "noise_scan", "noise_distance", "noise_angle",
+                     "moving_speed", "moving_clearance", "moving_radius"):
+            non_negative(k(name), getattr(self, name), 1e6)
+        if self.n_scan > self.n_beams:
+            _fail(k("n_scan"), f"cannot exceed n_beams={self.n_beams}, got {self.n_scan}")
+        choice(k("fov_convention"), self.fov_convention, ("total", "half_angle"))
+        choice(k("collision_reward_source"), self.collision_reward_source, ("scan", "min_uav_scan"))
+        choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
+        if len(self.area_center) != 2 or not all(_is_number(v) for v in self.area_center):
+            _fail(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
+        for i, c in enumerate(self.circles):
+            if len(c) != 3 or not all(_is_number(v) for v in c) or not c[2] > 0:
+                _fail(k("circles"), f"entry {i} must be [cx, cy, radius > 0], got {list(c)}")
+        for i, r in enumerate(self.rectangles):
+            if len(r) != 4 or not all(_is_number(v) for v in r) or not (r[2] > 0 and r[3] > 0):
+                _fail(k("rectangles"), f"entry {i} must be [cx, cy, width > 0, height > 0], got {list(r)}")
+        for i, a in enumerate(self.circles):
+            for j, b in enumerate(self.circles[i + 1:], i + 1):
+                if math.hypot(a[0] - b[0], a[1] - b[1]) < a[2] + b[2]:
+                    _fail(k("circles"), f"circles {i} and {j} overlap")
+            for j, r in enumerate(self.rectangles):
+                if _circle_rect_overlap(a, r):
+                    _fail(k("circles"), f"circle {i} overlaps rectangle {j}")
+        for i, a in enumerate(self.rectangles):
+            for j, b in enumerate(self.rectangles[i + 1:], i + 1):
+                if _rect_rect_overlap(a, b):
+                    _fail(k("rectangles"), f"rectangles {i} and {j} overlap")
+        if self.n_moving:
+            positive(k("moving_radius"), self.moving_radius, 1e6)
+            if len(self.moving_box) != 2 or not self.moving_box[0] < self.moving_box[1]:
+                _fail(k("moving_box"), f"must be [low, high] with low < high, got {list(self.moving_box)}")
+        return self._mark_checked()
+
+
+def _rect_rect_overlap(a: Sequence[float], b: Sequence[float]) -> bool:
+    return abs(a[0] - b[0]) < (a[2] + b[2]) / 2 and abs(a[1] - b[1]) < (a[3] + b[3]) / 2
+
+
+def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
+    dx = max(abs(c[0] - r[0]) - r[2] / 2, 0.0)
+    dy = max(abs(c[1] - r[1]) - r[3] / 2, 0.0)
+    return math.hypot(dx, dy) < c[2]
+
 
 SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 # The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
@@ -163,8 +404,10 @@ READINGS = ("literal", "paper_fit")
 
 
 @dataclass
-class PolicyConfig:
+class PolicyConfig(Schema):
     """One of the twelve policies (section 7); its scenario fields sit in the YAML's ``scenario:``."""
+
+    prefix: ClassVar[str] = "policy"
 
     id: str = MISSING                        # the YAML's stem, e.g. policy3_g
     name: str = MISSING                      # the paper's name, e.g. Policy3-G
@@ -173,9 +416,43 @@ class PolicyConfig:
     controller: Optional[str] = None         # olfati_saber | vasarhelyi (rule-based policies)
     params: Dict[str, Any] = field(default_factory=dict)  # the controller's parameters
 
+    def check(self, prefix: str | None = None) -> "PolicyConfig":
+        p = self.prefix if prefix is None else prefix
+        folder_name(_key(p, "id"), self.id)
+        choice(_key(p, "kind"), self.kind, ("learned", "rule"))
+        if self.kind == "learned":
+            choice(_key(p, "critic_input"), self.critic_input, ("observation", "state"))
+        else:
+            choice(_key(p, "controller"), self.controller, ("olfati_saber", "vasarhelyi"))
+        return self._mark_checked()
+
+
+class _Learner(Schema):
+    """What every learner's schema checks: the shared network and optimisation fields."""
+
+    prefix: ClassVar[str] = "algo"
+    # Network sizes and batches a machine can hold: far above every recipe.
+    _counts: ClassVar[tuple[tuple[str, int], ...]] = (("hidden", 65536), ("depth", 64))
+
+    def check(self, prefix: str | None = None) -> "_Learner":
+        p = self.prefix if prefix is None else prefix
+        for name, maximum in self._counts:
+            count(_key(p, name), getattr(self, name), 1, maximum)
+        fraction(_key(p, "gamma"), self.gamma)
+        non_negative(_key(p, "max_grad_norm"), self.max_grad_norm)
+        self._check_own(p)
+        return self._mark_checked()
+
+    def _check_own(self, p: str) -> None:
+        pass
+
+
+# Replay buffers are counted in UAV transitions; 1e9 is about 0.5 TB of swarm transitions.
+MAX_BUFFER = 10**9
+
 
 @dataclass
-class SACConfig:
+class SACConfig(_Learner):
     name: str = MISSING
     gamma: float = MISSING
     lr_actor: float = MISSING
@@ -192,9 +469,20 @@ class SACConfig:
     depth: int = MISSING
     max_grad_norm: float = MISSING
 
+    _counts: ClassVar = (("hidden", 65536), ("depth", 64), ("batch_size", 10**7), ("buffer_size", MAX_BUFFER),
+                         ("num_qvalue_nets", 16))
+
+    def _check_own(self, p: str) -> None:
+        for name in ("lr_actor", "lr_critic", "lr_alpha", "alpha_init"):
+            positive(_key(p, name), getattr(self, name))
+        fraction(_key(p, "tau"), self.tau)
+        if not _is_number(self.target_entropy):
+            _fail(_key(p, "target_entropy"), f"must be a finite number, got {self.target_entropy!r}")
+        choice(_key(p, "loss_function"), self.loss_function, ("l1", "l2", "smooth_l1"))
+
 
 @dataclass
-class DDPGConfig:
+class DDPGConfig(_Learner):
     name: str = MISSING
     gamma: float = MISSING
     lr_actor: float = MISSING
@@ -210,9 +498,20 @@ class DDPGConfig:
     noise_anneal_frames: int = MISSING
     max_grad_norm: float = MISSING
 
+    _counts: ClassVar = (("hidden", 65536), ("depth", 64), ("batch_size", 10**7), ("buffer_size", MAX_BUFFER),
+                         ("noise_anneal_frames", 10**12))
+
+    def _check_own(self, p: str) -> None:
+        for name in ("lr_actor", "lr_critic"):
+            positive(_key(p, name), getattr(self, name))
+        fraction(_key(p, "tau"), self.tau)
+        for name in ("noise_sigma", "noise_sigma_end"):
+            non_negative(_key(p, name), getattr(self, name))
+        choice(_key(p, "loss_function"), self.loss_function, ("l1", "l2", "smooth_l1"))
+
 
 @dataclass
-class PPOConfig:
+class PPOConfig(_Learner):
     name: str = MISSING
     rollout_steps: int = MISSING             # env steps per env per on-policy batch
     gamma: float = MISSING
@@ -229,13 +528,36 @@ class PPOConfig:
     depth: int = MISSING
     max_grad_norm: float = MISSING
 
+    _counts: ClassVar = (("hidden", 65536), ("depth", 64), ("rollout_steps", 10**6), ("epochs", 10**4),
+                         ("minibatch_size", 10**7))
 
-ALGO_SCHEMAS: dict[str, type] = {"sac": SACConfig, "ddpg": DDPGConfig, "ppo": PPOConfig}
+    def _check_own(self, p: str) -> None:
+        for name in ("lr", "clip_epsilon"):
+            positive(_key(p, name), getattr(self, name))
+        fraction(_key(p, "lmbda"), self.lmbda, low_open=False)
+        for name in ("entropy_coeff", "critic_coeff"):
+            non_negative(_key(p, name), getattr(self, name))
+        choice(_key(p, "loss_critic_type"), self.loss_critic_type, ("l1", "l2", "smooth_l1"))
+
+
+ALGO_SCHEMAS: dict[str, type[_Learner]] = {"sac": SACConfig, "ddpg": DDPGConfig, "ppo": PPOConfig}
+
+
+def algo_config(node: Any, prefix: str = "algo") -> _Learner:
+    """A learner's node as its schema, chosen by ``name`` (``sac``, ``ddpg``, ``ppo``), checked."""
+    if isinstance(node, _Learner):
+        return node if node.is_checked else node.check(prefix)
+    name = node.get("name") if hasattr(node, "get") else None
+    if name not in ALGO_SCHEMAS:
+        _fail(_key(prefix, "name"), f"must be one of {', '.join(ALGO_SCHEMAS)}; got {name!r}")
+    return ALGO_SCHEMAS[name].from_config(node, prefix)
 
 
 @dataclass
-class ExperimentConfig:
+class ExperimentConfig(Schema):
     """How long and how fast to train; its learner tuning is the ``tuning`` group."""
+
+    prefix: ClassVar[str] = "experiment"
 
     name: str = MISSING
     num_envs: int = MISSING                  # envs stepped together in one batched FlockingEnv
@@ -255,92 +577,281 @@ class ExperimentConfig:
     # an episode at UAV contact); evaluation runs the scenario as composed.
     train_env: Dict[str, Any] = field(default_factory=dict)
 
+    def check(self, prefix: str | None = None) -> "ExperimentConfig":
+        p = self.prefix if prefix is None else prefix
+        folder_name(_key(p, "name"), self.name)
+        count(_key(p, "num_envs"), self.num_envs, 1, 10**7)
+        count(_key(p, "workers"), self.workers, 1, 1024)
+        count(_key(p, "steps_per_batch"), self.steps_per_batch, 1, 10**6)
+        count(_key(p, "eval_episodes"), self.eval_episodes, 1, 10**6)
+        for name in ("updates_per_batch", "init_random_frames", "max_episodes", "max_frames", "log_every_frames",
+                     "eval_every_frames", "checkpoint_every_frames"):
+            count(_key(p, name), getattr(self, name), 0, 10**13)
+        non_negative(_key(p, "max_minutes"), self.max_minutes)
+        if not (self.max_episodes or self.max_frames or self.max_minutes):
+            _fail(p, "set at least one budget: max_episodes, max_frames or max_minutes")
+        unknown = sorted(set(self.train_env) - SCENARIO_FIELDS)
+        if unknown:
+            _fail(_key(p, "train_env"), f"unknown scenario field(s) {unknown}")
+        if self.workers > 1 and self.num_envs % self.workers:
+            _fail(_key(p, "workers"), f"{self.workers} must divide num_envs={self.num_envs}")
+        return self._mark_checked()
+
 
 @dataclass
-class LoggerConfig:
+class LoggerConfig(Schema):
+    prefix: ClassVar[str] = "logger"
+
     backend: str = MISSING                   # csv | wandb | tensorboard | none
     project: str = MISSING
     mode: str = MISSING                      # wandb: offline | online
 
+    def check(self, prefix: str | None = None) -> "LoggerConfig":
+        p = self.prefix if prefix is None else prefix
+        choice(_key(p, "backend"), self.backend, ("csv", "wandb", "tensorboard", "none"))
+        choice(_key(p, "mode"), self.mode, ("offline", "online"))
+        extra = {"tensorboard": "tensorboard", "wandb": "wandb"}.get(self.backend)
+        if extra and importlib.util.find_spec(extra) is None:
+            _fail(_key(p, "backend"), f"{self.backend} is not installed: pip install 'flock_torchrl[{extra}]'")
+        return self._mark_checked()
 
+
+# ---------------------------------------------------------------------------- app schemas
 @dataclass
-class TrainConfig:
-    """``conf/train.yaml``: one training run."""
+class WorldApp(Schema):
+    """What every app composed from ``conf/world.yaml`` holds: the scenario (with its reading)
+    and the values the apps share, each set once there."""
 
     scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
+    eval_seed: int = MISSING                 # the evaluation seed of every policy (section 5)
+    checkpoints_dir: str = MISSING           # shipped checkpoints: <dir>/<reading>/<policy>/seed<k>.pt
+    paper_recipe_dir: str = MISSING          # the paper recipe's shipped checkpoints (<policy>_seed<k>.pt)
+
+    def _check_world(self) -> None:
+        self.scenario.check()
+        check_seed("eval_seed", self.eval_seed)
+
+
+@dataclass
+class TrainConfig(WorldApp):
+    """``conf/train.yaml``: one training run (``scripts/train.py``)."""
+
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: Any = None
     experiment: ExperimentConfig = field(default_factory=ExperimentConfig)
     logger: LoggerConfig = field(default_factory=LoggerConfig)
     seed: int = MISSING
     device: str = MISSING
-    eval_seed: int = MISSING
-    resume: Any = MISSING                    # false | true | auto | <run folder>
+    resume: str = MISSING                    # false | true | auto
     progress: bool = MISSING
     threads: int = MISSING
-    compile: bool = MISSING                  # torch.compile the learner's update (eager twin: false)
+    compile: bool = MISSING                  # torch.compile the learner's loss and the env's step
+    objective: str = MISSING                 # what the app returns to a sweeper: a final-evaluation metric
+    resumable: List[str] = field(default_factory=list)   # keys a resume may change (a trailing . = a group)
+
+    def check(self, prefix: str | None = None) -> "TrainConfig":
+        self._check_world()
+        self.policy.check()
+        if self.policy.kind != "learned":
+            _fail("policy", f"{self.policy.name} is rule-based: there is nothing to train (evaluate it with "
+                            f"scripts/evaluate.py policy={self.policy.id})")
+        if self.algo is None:
+            _fail("algo", f"policy {self.policy.id} selects no learner")
+        self.algo = algo_config(self.algo)
+        self.experiment.check()
+        self.logger.check()
+        self.train_scenario  # noqa: B018 - the training env's scenario is checked too
+        check_seed("seed", self.seed)
+        check_device("device", self.device)
+        check_threads("threads", self.threads)
+        choice("resume", str(self.resume).lower(), RESUME_MODES)
+        choice("objective", self.objective, OBJECTIVES)
+        return self._mark_checked()
+
+    @property
+    def train_scenario(self) -> ScenarioConfig:
+        """The scenario plus the experiment's ``train_env`` recipe (the training env's world)."""
+        if not self.experiment.train_env:
+            return self.scenario
+        try:
+            return dataclasses.replace(self.scenario, **dict(self.experiment.train_env)).check()
+        except ConfigError as exc:
+            raise ConfigError(f"experiment.train_env ({exc.key})", exc.message) from exc
+
+    @property
+    def resume_mode(self) -> str:
+        """``never``, ``always`` or ``auto``."""
+        return {"false": "never", "true": "always", "auto": "auto"}[str(self.resume).lower()]
+
+
+RESUME_MODES = ("false", "true", "auto")
+# What the train app returns to a sweeper (Optuna, Ax): a metric of the run's final evaluation.
+OBJECTIVES = ("success_rate", "safe_success_rate", "return")
 
 
 @dataclass
-class EvaluateConfig:
-    """``conf/evaluate.yaml``: one policy, one scenario, the section 5 protocol."""
+class EvaluateConfig(WorldApp):
+    """``conf/evaluate.yaml``: one policy (or a checkpoint), one scenario, the section 5 protocol."""
 
-    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: Any = None
     checkpoint: Optional[str] = None         # a checkpoint file instead of the shipped ones
-    checkpoints_dir: str = MISSING           # shipped checkpoints: <dir>/<reading>/<policy>/seed<k>.pt
     episodes: int = MISSING
     seed: int = MISSING
     device: str = MISSING
     threads: int = MISSING
     max_steps: Optional[int] = None
 
+    def check(self, prefix: str | None = None) -> "EvaluateConfig":
+        self.policy.check()
+        if self.max_steps is not None:
+            count("max_steps", self.max_steps, 1, 10**7)
+            self.scenario = dataclasses.replace(self.scenario, max_steps=self.max_steps)
+        self._check_world()
+        _check_run(self)
+        return self._mark_checked()
+
+
+def _check_run(cfg: Any) -> None:
+    """The fields every evaluating app shares: episodes, seed, device, threads."""
+    count("episodes", cfg.episodes, 1, 10**7)
+    check_seed("seed", cfg.seed)
+    check_device("device", cfg.device)
+    check_threads("threads", cfg.threads)
+
 
 @dataclass
-class ReproduceConfig:
+class ReproduceConfig(WorldApp):
     """``conf/reproduce.yaml``: one of the paper's tables (the reading: ``scenario.reading``)."""
 
-    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
     table: int = MISSING
     episodes: int = MISSING
     seed: int = MISSING
     device: str = MISSING
     threads: int = MISSING
-    checkpoints_dir: str = MISSING
     only: List[str] = field(default_factory=list)
     episodes_csv: bool = MISSING
-    paper_run: Optional[str] = None          # Table III: a checkpoint of the paper's own recipe, its own row
+
+    def check(self, prefix: str | None = None) -> "ReproduceConfig":
+        self._check_world()
+        choice("table", self.table, (3, 4, 5))
+        _check_run(self)
+        return self._mark_checked()
 
 
 @dataclass
-class FiguresConfig:
+class FiguresConfig(WorldApp):
     """``conf/figures.yaml``: the paper's figures (the reading: ``scenario.reading``)."""
 
-    scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
     figs: List[int] = MISSING
-    checkpoints_dir: str = MISSING
     seed: int = MISSING
     device: str = MISSING
     threads: int = MISSING
-    paper_run: Optional[str] = None
+
+    def check(self, prefix: str | None = None) -> "FiguresConfig":
+        self._check_world()
+        if not self.figs or any(f not in (4, 5, 6) for f in self.figs):
+            _fail("figs", f"a list of 4, 5 and 6, got {list(self.figs)}")
+        check_seed("seed", self.seed)
+        check_device("device", self.device)
+        check_threads("threads", self.threads)
+        return self._mark_checked()
+
+
+@dataclass
+class ScalingConfig(WorldApp):
+    """``conf/scaling.yaml``: one shipped policy flown by larger swarms."""
+
+    policy_name: str = MISSING
+    sizes: List[int] = MISSING
+    episodes: int = MISSING
+    seed: int = MISSING
+    device: str = MISSING
+    threads: int = MISSING
+
+    def check(self, prefix: str | None = None) -> "ScalingConfig":
+        self._check_world()
+        if not self.sizes:
+            _fail("sizes", "a list of swarm sizes, got []")
+        for n in self.sizes:
+            count("sizes", n, 1, 2000)
+        _check_run(self)
+        return self._mark_checked()
+
+
+@dataclass
+class TuneConfig(WorldApp):
+    """``conf/tune_baselines.yaml``: the rule-based baselines' grid search."""
+
+    controllers: List[str] = MISSING
+    episodes: int = MISSING
+    max_steps: int = MISSING
+    seed: int = MISSING
+    threads: int = MISSING
+    evaluate: bool = MISSING
+    scenarios: List[str] = MISSING
+
+    def check(self, prefix: str | None = None) -> "TuneConfig":
+        self._check_world()
+        count("episodes", self.episodes, 1, 10**7)
+        count("max_steps", self.max_steps, 1, 10**7)
+        check_seed("seed", self.seed)
+        check_threads("threads", self.threads)
+        for name in self.scenarios:
+            choice("scenarios", name, available("scenario"))
+        return self._mark_checked()
+
+
+@dataclass
+class BenchmarkConfig(Schema):
+    """``conf/benchmark.yaml``: throughput, each figure against a baseline in the same process."""
+
+    quick: bool = MISSING
+    device: str = MISSING
+    threads: int = MISSING
+
+    def check(self, prefix: str | None = None) -> "BenchmarkConfig":
+        check_device("device", self.device)
+        check_threads("threads", self.threads)
+        return self._mark_checked()
+
+
+@dataclass
+class ShipConfig(WorldApp):
+    """``conf/ship.yaml``: the named step that exports finished runs into ``checkpoints/``."""
+
+    experiment: str = MISSING
+    runs_dir: str = MISSING
+    paper_experiment: str = MISSING
+
+    def check(self, prefix: str | None = None) -> "ShipConfig":
+        self._check_world()
+        folder_name("experiment", self.experiment)
+        folder_name("paper_experiment", self.paper_experiment)
+        return self._mark_checked()
+
+
+APP_SCHEMAS: dict[str, type[Schema]] = {
+    "train": TrainConfig, "evaluate": EvaluateConfig, "reproduce": ReproduceConfig, "figures": FiguresConfig,
+    "scaling": ScalingConfig, "tune_baselines": TuneConfig, "benchmark": BenchmarkConfig, "ship": ShipConfig,
+}
 
 
 def register_schemas() -> None:
-    """Put every schema in Hydra's ConfigStore (the YAMLs name them in their defaults lists)."""
+    """Put every schema in Hydra's ConfigStore as a root config (``<name>_schema``): the YAMLs
+    name them in their defaults lists (a group's file as ``/scenario_schema@_here_``), so they
+    type the composition without appearing among a group's choices."""
     from hydra.core.config_store import ConfigStore
 
     cs = ConfigStore.instance()
-    cs.store(group="scenario", name="scenario_schema", node=ScenarioConfig)
-    cs.store(group="policy", name="policy_schema", node=PolicyConfig, package="policy")
+    cs.store(name="scenario_schema", node=ScenarioConfig)
+    cs.store(name="policy_schema", node=PolicyConfig)
     for name, schema in ALGO_SCHEMAS.items():
-        cs.store(group="algo", name=f"{name}_schema", node=schema)
-    cs.store(group="experiment", name="experiment_schema", node=ExperimentConfig)
-    cs.store(group="logger", name="logger_schema", node=LoggerConfig)
-    cs.store(name="train_schema", node=TrainConfig)
-    cs.store(name="evaluate_schema", node=EvaluateConfig)
-    cs.store(name="reproduce_schema", node=ReproduceConfig)
-    cs.store(name="figures_schema", node=FiguresConfig)
+        cs.store(name=f"{name}_schema", node=schema)
+    cs.store(name="experiment_schema", node=ExperimentConfig)
+    cs.store(name="logger_schema", node=LoggerConfig)
+    for app, schema in APP_SCHEMAS.items():
+        cs.store(name=f"{app}_schema", node=schema)
 
 
 register_schemas()
@@ -349,10 +860,10 @@ register_schemas()
 # ---------------------------------------------------------------------------- the composer
 def compose(config_name: str, overrides: Sequence[str] = (), return_hydra_config: bool = False) -> DictConfig:
     """Compose ``conf/<config_name>.yaml`` with Hydra's compose API and command-line style
-    ``overrides`` — the same composition ``hydra.main`` performs for the scripts.
+    ``overrides``, as ``hydra.main`` does for the scripts.
 
     Safe inside a running Hydra app: the app's global Hydra state is put back afterwards.
-    Errors become :class:`ConfigError` with Hydra's message.
+    Errors become :class:`ConfigError` (Hydra's message, the key where there is one).
     """
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
@@ -360,81 +871,49 @@ def compose(config_name: str, overrides: Sequence[str] = (), return_hydra_config
     from hydra.errors import HydraException
     from hydra.initialize import get_gh_backup, restore_gh_from_backup
 
-    choices = {}
-    for item in overrides:
-        key, sep, value = str(item).lstrip("+~").partition("=")
-        if sep and "/" not in key and "." not in key and (CONF_DIR / key).is_dir():
-            choices[key] = value
-            if value not in ("null", "None") and "," not in value and value not in available(key):
-                raise ConfigError(key, f"unknown choice {value!r}; available: {', '.join(available(key))}")
     backup = get_gh_backup()
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
             return hydra_compose(config_name, overrides=list(overrides), return_hydra_config=return_hydra_config)
-    except (HydraException, OmegaConfBaseException) as exc:
-        if "${algo}" in str(exc) and "policy" in choices:  # a rule-based policy selects no learner
-            raise ConfigError("policy", f"{choices['policy']} is rule-based: there is nothing to train (evaluate "
-                                        f"it with scripts/evaluate.py policy={choices['policy']})") from exc
-        raise config_error_from(exc) from exc
+    except OmegaConfBaseException as exc:
+        raise config_error(exc) from exc
+    except HydraException as exc:
+        cause = exc.__cause__
+        if isinstance(cause, OmegaConfBaseException):
+            raise config_error(cause) from exc
+        # Hydra's message up to its (long) listing of the config search path.
+        raise ConfigError(_hydra_key(exc), " ".join(str(exc).split("Config search path")[0].split())) from exc
     finally:
         restore_gh_from_backup(backup)
 
 
-def config_error_from(exc: BaseException) -> ConfigError:
-    """One readable :class:`ConfigError` from a Hydra / OmegaConf exception."""
-    if isinstance(exc, ConfigError):
-        return exc
-    cause: BaseException = exc
-    while cause.__cause__ is not None and not isinstance(cause, OmegaConfBaseException):
-        cause = cause.__cause__
-    key = str(getattr(cause, "full_key", "") or "")
-    text = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
-    match = re.match(r"Value '(.*?)'(?: of type '\w+')? could not be converted to (\w+)", text)
-    if match:
-        return ConfigError(key, f"expected {_article(match.group(2))}, got {match.group(1)!r}")
-    match = re.search(r"Key '(.+?)' not in '(\w+)'", text)
-    if match:
-        return ConfigError(key or match.group(1), f"unknown key (not a field of {match.group(2)})")
-    match = re.search(r"Could not find '(.+?)'", text)
-    if match:
-        group, _, choice = match.group(1).rpartition("/")
-        options = _group_options(group)
-        return ConfigError(group or match.group(1), f"unknown choice {choice!r}"
-                           + (f"; available: {', '.join(options)}" if options else ""))
-    if "Missing mandatory value" in text:
-        return ConfigError(key, "missing value (no YAML sets it)")
-    return ConfigError(key, text)
+def _hydra_key(exc: BaseException) -> str:
+    """The config group or key a Hydra error is about, from its attributes."""
+    missing = getattr(exc, "missing_cfg_file", None)
+    if missing:
+        return str(missing).rpartition("/")[0] or str(missing)
+    return ""
 
 
-def _article(type_name: str) -> str:
-    words = {"Integer": "an integer", "Float": "a number", "Boolean": "a boolean (true/false)", "String": "a string"}
-    return words.get(type_name, type_name)
-
-
-def _group_options(group: str) -> list[str]:
+def available(group: str) -> list[str]:
+    """The choices of a config group in the package's ``conf/`` (YAML stems)."""
     folder = CONF_DIR / group
     return sorted(p.stem for p in folder.glob("*.yaml")) if group and folder.is_dir() else []
 
 
-def available(group: str) -> list[str]:
-    """The choices of a config group (YAML stems under ``conf/<group>/``)."""
-    return _group_options(group)
+@functools.lru_cache(maxsize=1)
+def _world_values() -> DictConfig:
+    return OmegaConf.load(CONF_DIR / "world.yaml")
 
 
-def to_object(node: Any, schema: type, key: str) -> Any:
-    """``node`` (DictConfig or mapping) as an instance of the dataclass ``schema``; a type
-    error, an unknown key or a missing value becomes a :class:`ConfigError` under ``key``."""
-    try:
-        if isinstance(node, DictConfig):  # plain values: a key the schema lacks fails the merge
-            node = OmegaConf.to_container(node, resolve=True)
-        merged = OmegaConf.merge(OmegaConf.structured(schema), node)
-        return OmegaConf.to_object(merged)
-    except OmegaConfBaseException as exc:
-        err = config_error_from(exc)
-        if not key or (err.key and err.key.startswith(key)):
-            raise ConfigError(err.key or key, err.message) from exc
-        raise ConfigError(f"{key}.{err.key}" if err.key else key, err.message) from exc
+# The evaluation seed every policy shares (docs/specification.md section 5): conf/world.yaml.
+EVAL_SEED: int = int(_world_values().eval_seed)
+
+
+def default_checkpoints_dir() -> Path:
+    """Where the shipped checkpoints are (``checkpoints_dir`` of conf/world.yaml)."""
+    return Path(str(_world_values().checkpoints_dir))
 
 
 # ---------------------------------------------------------------------------- scenarios
@@ -473,224 +952,16 @@ def scenario_config(scenario: str | Mapping[str, Any] | DictConfig | ScenarioCon
     else:
         if reading is not None or policy is not None:
             raise ConfigError("scenario", "reading= and policy= select YAMLs; pass them with a scenario name")
-        if isinstance(scenario, ScenarioConfig):
-            scenario = dataclasses.asdict(scenario)
-        node = scenario
+        if isinstance(scenario, ScenarioConfig) and not fields:
+            return ScenarioConfig.from_config(scenario)
+        node = dataclasses.asdict(scenario) if isinstance(scenario, ScenarioConfig) else scenario
     try:
         node = OmegaConf.merge(OmegaConf.structured(ScenarioConfig), node)
-    except OmegaConfBaseException as exc:
-        err = config_error_from(exc)
-        raise ConfigError(f"scenario.{err.key}" if err.key else "scenario", err.message) from exc
-    for name, value in fields.items():
-        try:
+        for name, value in fields.items():
             OmegaConf.update(node, name, value, merge=False)
-        except OmegaConfBaseException as exc:
-            raise ConfigError(f"scenario.{name}", config_error_from(exc).message) from exc
-    return check_scenario(to_object(node, ScenarioConfig, "scenario"))
-
-
-def _fail(key: str, message: str) -> None:
-    raise ConfigError(key, message)
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def check_positive(obj: Any, prefix: str, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if not (_is_number(value) and value > 0):
-            _fail(f"{prefix}.{name}", f"must be a positive finite number, got {value!r}")
-
-
-def check_non_negative(obj: Any, prefix: str, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if not (_is_number(value) and value >= 0):
-            _fail(f"{prefix}.{name}", f"must be a finite number >= 0, got {value!r}")
-
-
-def check_count(obj: Any, prefix: str, *names: str, minimum: int = 1) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if not (_is_int(value) and value >= minimum):
-            _fail(f"{prefix}.{name}", f"must be an integer >= {minimum}, got {value!r}")
-
-
-def check_choice(obj: Any, prefix: str, name: str, choices: Sequence[Any]) -> None:
-    value = getattr(obj, name)
-    if value not in choices:
-        _fail(f"{prefix}.{name}", f"must be one of {', '.join(map(str, choices))}; got {value!r}")
-
-
-def _rect_rect_overlap(a: Sequence[float], b: Sequence[float]) -> bool:
-    return abs(a[0] - b[0]) < (a[2] + b[2]) / 2 and abs(a[1] - b[1]) < (a[3] + b[3]) / 2
-
-
-def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
-    dx = max(abs(c[0] - r[0]) - r[2] / 2, 0.0)
-    dy = max(abs(c[1] - r[1]) - r[3] / 2, 0.0)
-    return math.hypot(dx, dy) < c[2]
-
-
-def check_scenario(cfg: ScenarioConfig) -> ScenarioConfig:
-    """Check every field's range; raise :class:`ConfigError` naming the first bad one.
-
-    Whether the spawn sampler can always meet the separation is the world's question:
-    :func:`flock_torchrl.world.spawn.check_spawn_feasible` (run by every ``FlockingEnv``).
-    """
-    p = "scenario"
-    check_choice(cfg, p, "reading", READINGS)
-    check_count(cfg, p, "n_uavs", "max_steps", "n_beams", "n_scan", "n_cam", "spawn_max_tries",
-                "spawn_reference_uavs")
-    check_count(cfg, p, "n_moving", minimum=0)
-    check_positive(cfg, p, "dt", "tau_v", "v_max", "goal_radius", "camera_range", "laser_range", "area_size",
-                   "goal_scale", "spawn_radius", "rep_range", "fov")
-    check_non_negative(cfg, p, "collision_distance", "safe_distance", "rep_gain", "heading_speed_threshold",
-                       "spawn_separation", "spawn_clearance", "d_env", "noise_scan", "noise_distance",
-                       "noise_angle", "moving_speed", "moving_clearance", "moving_radius")
-    if cfg.n_scan > cfg.n_beams:
-        _fail(f"{p}.n_scan", f"cannot exceed n_beams={cfg.n_beams}, got {cfg.n_scan}")
-    if cfg.fov > 2 * math.pi + 1e-9:
-        _fail(f"{p}.fov", f"must lie in (0, 2 pi], got {cfg.fov!r}")
-    check_choice(cfg, p, "fov_convention", ("total", "half_angle"))
-    check_choice(cfg, p, "collision_reward_source", ("scan", "min_uav_scan"))
-    check_choice(cfg, p, "action_mode", ("policy", "velocity"))
-    if len(cfg.area_center) != 2:
-        _fail(f"{p}.area_center", f"must be [x, y], got {list(cfg.area_center)}")
-    for i, c in enumerate(cfg.circles):
-        if len(c) != 3 or not c[2] > 0:
-            _fail(f"{p}.circles", f"entry {i} must be [cx, cy, radius > 0], got {list(c)}")
-    for i, r in enumerate(cfg.rectangles):
-        if len(r) != 4 or not (r[2] > 0 and r[3] > 0):
-            _fail(f"{p}.rectangles", f"entry {i} must be [cx, cy, width > 0, height > 0], got {list(r)}")
-    for i, a in enumerate(cfg.circles):
-        for j, b in enumerate(cfg.circles[i + 1:], i + 1):
-            if math.hypot(a[0] - b[0], a[1] - b[1]) < a[2] + b[2]:
-                _fail(f"{p}.circles", f"circles {i} and {j} overlap")
-        for j, r in enumerate(cfg.rectangles):
-            if _circle_rect_overlap(a, r):
-                _fail(f"{p}.circles", f"circle {i} overlaps rectangle {j}")
-    for i, a in enumerate(cfg.rectangles):
-        for j, b in enumerate(cfg.rectangles[i + 1:], i + 1):
-            if _rect_rect_overlap(a, b):
-                _fail(f"{p}.rectangles", f"rectangles {i} and {j} overlap")
-    if cfg.n_moving:
-        check_positive(cfg, p, "moving_radius")
-        if len(cfg.moving_box) != 2 or not cfg.moving_box[0] < cfg.moving_box[1]:
-            _fail(f"{p}.moving_box", f"must be [low, high] with low < high, got {list(cfg.moving_box)}")
-    return cfg
-
-
-# ---------------------------------------------------------------------------- the other groups
-def check_policy(cfg: PolicyConfig) -> PolicyConfig:
-    p = "policy"
-    check_choice(cfg, p, "kind", ("learned", "rule"))
-    if cfg.kind == "learned":
-        check_choice(cfg, p, "critic_input", ("observation", "state"))
-    else:
-        check_choice(cfg, p, "controller", ("olfati_saber", "vasarhelyi"))
-    return cfg
-
-
-def check_algo(node: Any) -> Any:
-    """The algo node as its dataclass (chosen by ``name``), ranges checked."""
-    name = node.get("name") if hasattr(node, "get") else None
-    if name not in ALGO_SCHEMAS:
-        _fail("algo.name", f"must be one of {', '.join(ALGO_SCHEMAS)}; got {name!r}")
-    cfg = to_object(node, ALGO_SCHEMAS[name], "algo")
-    p = "algo"
-    if not (_is_number(cfg.gamma) and 0 < cfg.gamma <= 1):
-        _fail(f"{p}.gamma", f"must lie in (0, 1], got {cfg.gamma!r}")
-    for key in ("lr_actor", "lr_critic", "lr_alpha", "lr", "hidden", "depth", "batch_size", "buffer_size",
-                "minibatch_size", "epochs", "rollout_steps", "num_qvalue_nets", "alpha_init", "clip_epsilon"):
-        if hasattr(cfg, key):
-            check_positive(cfg, p, key)
-    for key in ("hidden", "depth", "batch_size", "buffer_size", "minibatch_size", "epochs", "rollout_steps",
-                "num_qvalue_nets", "noise_anneal_frames"):
-        if hasattr(cfg, key):
-            check_count(cfg, p, key)
-    for key in ("tau",):
-        if hasattr(cfg, key) and not (_is_number(cfg.tau) and 0 < cfg.tau <= 1):
-            _fail(f"{p}.tau", f"must lie in (0, 1], got {cfg.tau!r}")
-    for key in ("max_grad_norm", "noise_sigma", "noise_sigma_end", "entropy_coeff", "critic_coeff"):
-        if hasattr(cfg, key):
-            check_non_negative(cfg, p, key)
-    if hasattr(cfg, "lmbda") and not (_is_number(cfg.lmbda) and 0 <= cfg.lmbda <= 1):
-        _fail(f"{p}.lmbda", f"must lie in [0, 1], got {cfg.lmbda!r}")
-    if hasattr(cfg, "target_entropy") and not _is_number(cfg.target_entropy):
-        _fail(f"{p}.target_entropy", f"must be a finite number, got {cfg.target_entropy!r}")
-    if hasattr(cfg, "loss_function"):
-        check_choice(cfg, p, "loss_function", ("l1", "l2", "smooth_l1"))
-    if hasattr(cfg, "loss_critic_type"):
-        check_choice(cfg, p, "loss_critic_type", ("l1", "l2", "smooth_l1"))
-    return cfg
-
-
-def check_experiment(cfg: ExperimentConfig) -> ExperimentConfig:
-    p = "experiment"
-    check_count(cfg, p, "num_envs", "workers", "steps_per_batch", "eval_episodes")
-    check_count(cfg, p, "updates_per_batch", "init_random_frames", "max_episodes", "max_frames",
-                "log_every_frames", "eval_every_frames", "checkpoint_every_frames", minimum=0)
-    check_non_negative(cfg, p, "max_minutes")
-    if not (cfg.max_episodes or cfg.max_frames or cfg.max_minutes):
-        _fail(p, "set at least one budget: max_episodes, max_frames or max_minutes")
-    unknown = sorted(set(cfg.train_env) - SCENARIO_FIELDS)
-    if unknown:
-        _fail(f"{p}.train_env", f"unknown scenario field(s) {unknown}")
-    if cfg.workers > 1 and cfg.num_envs % cfg.workers:
-        _fail(f"{p}.workers", f"{cfg.workers} must divide num_envs={cfg.num_envs}")
-    return cfg
-
-
-def check_logger(cfg: LoggerConfig) -> LoggerConfig:
-    check_choice(cfg, "logger", "backend", ("csv", "wandb", "tensorboard", "none"))
-    check_choice(cfg, "logger", "mode", ("offline", "online"))
-    return cfg
-
-
-def check_device(device: str, key: str = "device") -> str:
-    """``cpu``, ``cuda`` or ``cuda:<k>`` on a machine that has it."""
-    import torch
-
-    text = str(device)
-    if not re.fullmatch(r"cpu|cuda(:\d+)?|mps", text):
-        _fail(key, f"must be cpu, cuda or cuda:<index>, got {text!r}")
-    if text.startswith("cuda"):
-        if not torch.cuda.is_available():
-            _fail(key, f"{text!r} asked for, but this torch build ({torch.__version__}) sees no CUDA device")
-        index = int(text.split(":")[1]) if ":" in text else 0
-        if index >= torch.cuda.device_count():
-            _fail(key, f"{text!r} asked for, but only {torch.cuda.device_count()} CUDA device(s) exist")
-    if text == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
-        _fail(key, "'mps' asked for, but it is not available")
-    return text
-
-
-def check_seed(seed: Any, key: str = "seed") -> int:
-    if not (_is_int(seed) and 0 <= seed < 2**63):
-        _fail(key, f"must be an integer >= 0, got {seed!r}")
-    return seed
-
-
-def resume_mode(value: Any) -> str | Path:
-    """``resume`` as ``"never"``, ``"always"``, ``"auto"`` or a run folder (:class:`Path`)."""
-    text = str(value).strip()
-    lowered = text.lower()
-    if lowered in ("false", "no", "0", "never"):
-        return "never"
-    if lowered in ("true", "yes", "1", "always"):
-        return "always"
-    if lowered == "auto":
-        return "auto"
-    if not text:
-        _fail("resume", "must be true, false, auto or a run folder")
-    return Path(text)
+    except OmegaConfBaseException as exc:
+        raise config_error(exc, "scenario") from exc
+    return ScenarioConfig.from_config(node)
 
 
 def plain(cfg: Any) -> Any:
@@ -715,9 +986,12 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 __all__ = [
-    "ALGO_SCHEMAS", "CONF_DIR", "ConfigError", "DDPGConfig", "EvaluateConfig", "ExperimentConfig", "FiguresConfig",
-    "LoggerConfig", "POLICY_SCENARIO_FIELDS", "PPOConfig", "PolicyConfig", "READINGS", "ReproduceConfig",
-    "SACConfig", "SCENARIO_FIELDS", "ScenarioConfig", "TrainConfig", "available", "check_algo", "check_device",
-    "check_experiment", "check_logger", "check_policy", "check_scenario", "check_seed", "compose", "compose_world",
-    "config_dir", "flatten", "plain", "resume_mode", "scenario_config", "to_object",
+    "ALGO_SCHEMAS", "APP_SCHEMAS", "BenchmarkConfig", "CONF_DIR", "ConfigError", "DDPGConfig", "EVAL_SEED",
+    "EvaluateConfig", "ExperimentConfig", "FiguresConfig", "LoggerConfig", "MAX_SEED", "OBJECTIVES",
+    "POLICY_SCENARIO_FIELDS", "PPOConfig", "PolicyConfig", "READINGS", "ReproduceConfig", "SACConfig",
+    "SCENARIO_FIELDS", "ScalingConfig", "ScenarioConfig", "Schema", "ShipConfig", "TrainConfig", "TuneConfig",
+    "WorldApp",
+    "algo_config", "available", "check_device", "check_seed", "compose", "compose_world", "config_dir",
+    "default_checkpoints_dir", "shipped_checkpoints_dir",
+    "config_error", "flatten", "plain", "run_name", "safe_name", "scenario_config",
 ]

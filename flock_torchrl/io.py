@@ -9,6 +9,7 @@ figures all go through it.
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import math
 import os
@@ -49,7 +50,12 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
-    return write_bytes(path, text.encode())
+    """Text as UTF-8; a ``.gz`` path is gzip-compressed (byte-identical for identical text:
+    no timestamp in the header), which ``pandas.read_csv`` and ``gzip.open`` read back."""
+    data = text.encode()
+    if str(path).endswith(".gz"):
+        data = gzip.compress(data, compresslevel=9, mtime=0)
+    return write_bytes(path, data)
 
 
 def csv_value(value: Any) -> Any:
@@ -72,7 +78,8 @@ def csv_text(fieldnames: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> st
 
 
 def write_csv(path: str | os.PathLike, fieldnames: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> Path:
-    """Rows of dicts as CSV (missing keys empty, extra keys ignored), written atomically."""
+    """Rows of dicts as CSV (missing keys empty, extra keys ignored), written atomically
+    (gzip-compressed for a ``.gz`` path)."""
     return write_text(path, csv_text(fieldnames, rows))
 
 

@@ -5,9 +5,8 @@ conf/benchmark.yaml; logic: flock_torchrl.report.benchmark).
     python scripts/benchmark.py quick=true
 """
 
-import sys
 
 from flock_torchrl.cli import benchmark_main
 
 if __name__ == "__main__":
-    sys.exit(benchmark_main())
+    benchmark_main()

@@ -1,4 +1,4 @@
-"""Evaluate one policy on one scenario (a Hydra app on conf/evaluate.yaml; logic: flock_torchrl.run.evaluation).
+"""Evaluate one policy on one scenario (a Hydra app on conf/evaluate.yaml; logic: flock_torchrl.run.rollout).
 
     python scripts/evaluate.py policy=policy3_g scenario=s2 episodes=500
     python scripts/evaluate.py policy=policy_op scenario=tau_v scenario.tau_v=0.5
@@ -7,9 +7,8 @@
 Writes episodes.csv (one row per episode) and summary.json into outputs/evaluate/...
 """
 
-import sys
 
 from flock_torchrl.cli import evaluate_main
 
 if __name__ == "__main__":
-    sys.exit(evaluate_main())
+    evaluate_main()

@@ -7,9 +7,8 @@ flock_torchrl.report.figures).
 Writes into outputs/figures/<reading>/.
 """
 
-import sys
 
 from flock_torchrl.cli import figures_main
 
 if __name__ == "__main__":
-    sys.exit(figures_main())
+    figures_main()

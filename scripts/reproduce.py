@@ -1,16 +1,15 @@
 """Reproduce the paper's Table III, IV or V under one reading (a Hydra app on conf/reproduce.yaml;
-logic: flock_torchrl.report.tables).
+logic: flock_torchrl.report.reproduce).
 
     python scripts/reproduce.py table=3
     python scripts/reproduce.py table=4 reading=paper_fit episodes=100 only=[Policy3-G,Policy-MA]
 
 Writes table<k>.md/.csv (ours, the paper's, the difference), table<k>_seeds.csv,
-table<k>_episodes.csv and fidelity.md into outputs/reproduce/<reading>/.
+table<k>_episodes.csv.gz, fidelity.md and summary.md into outputs/reproduce/<reading>/.
 """
 
-import sys
 
 from flock_torchrl.cli import reproduce_main
 
 if __name__ == "__main__":
-    sys.exit(reproduce_main())
+    reproduce_main()

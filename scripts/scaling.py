@@ -4,9 +4,8 @@ flock_torchrl.report.scaling).
     python scripts/scaling.py reading=paper_fit
 """
 
-import sys
 
 from flock_torchrl.cli import scaling_main
 
 if __name__ == "__main__":
-    sys.exit(scaling_main())
+    scaling_main()

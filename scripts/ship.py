@@ -3,9 +3,8 @@
     python scripts/ship.py reading=paper_fit experiment=fast
 """
 
-import sys
 
 from flock_torchrl.cli import ship_main
 
 if __name__ == "__main__":
-    sys.exit(ship_main())
+    ship_main()

@@ -2,13 +2,12 @@
 
     python scripts/train.py policy=policy3_g experiment=fast seed=0
     python scripts/train.py -m policy=policy1,policy3_g seed=0,1,2       # a sweep, one folder per job
-    python scripts/train.py resume=runs/fast/literal/policy3_g/seed0     # continue a stopped run
+    python scripts/train.py -cd runs/fast/paper_fit/policy3_g/seed0 -cn resume   # continue a stopped run
     python scripts/train.py policy=policy3_g --cfg job                    # print what would run
 """
 
-import sys
 
 from flock_torchrl.cli import train_main
 
 if __name__ == "__main__":
-    sys.exit(train_main())
+    train_main()

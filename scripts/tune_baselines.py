@@ -5,9 +5,8 @@ logic: flock_torchrl.report.tuning).
     python scripts/tune_baselines.py evaluate=true episodes=500
 """
 
-import sys
 
 from flock_torchrl.cli import tune_baselines_main
 
 if __name__ == "__main__":
-    sys.exit(tune_baselines_main())
+    tune_baselines_main()

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers import run_script
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.max_frames=48", "experiment.eval_every_frames=0",
@@ -26,13 +27,7 @@ def default_reading() -> str:
     return compose("world").scenario.reading
 
 
-def run(script: str, *args: str, cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
-    if check and proc.returncode != 0:
-        raise AssertionError(f"{script} {args} exited {proc.returncode}:\n{proc.stdout}\n{proc.stderr}")
-    return proc
+run = run_script
 
 
 def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
@@ -41,13 +36,14 @@ def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
         cwd=tmp_path)
     runs = sorted((tmp_path / "runs" / "tiny" / default_reading() / "policy3_g").iterdir())
-    assert [r.name for r in runs] == [f"seed6__algo.lr_actor={lr},scenario.max_steps=40,scenario.tau_v={tau}"
+    # key-value pairs joined by "__": a folder name is a valid Hydra value as it is (no "=" or ",").
+    assert [r.name for r in runs] == [f"seed6__algo.lr_actor-{lr}__scenario.max_steps-40__scenario.tau_v-{tau}"
                                       for lr in ("0.0001", "0.001") for tau in ("0.5", "2.0")]
     for folder in runs:
         config = yaml.safe_load((folder / "config.yaml").read_text())
-        lr, _, tau = folder.name.split("__")[1].split(",")
-        assert config["algo"]["lr_actor"] == float(lr.split("=")[1])
-        assert config["scenario"]["tau_v"] == float(tau.split("=")[1])
+        lr, _, tau = folder.name.split("__")[1:]
+        assert config["algo"]["lr_actor"] == float(lr.split("-", 1)[1])
+        assert config["scenario"]["tau_v"] == float(tau.split("-", 1)[1])
         assert (folder / "last.pt").is_file() and (folder / "episodes.csv").is_file()
     # The same sweep again resumes each job's own finished run: nothing changes.
     before = {f: (f / "last.pt").read_bytes() for f in runs}
@@ -64,7 +60,7 @@ def test_sweep_dir_moves_everything_and_config_is_what_cfg_job_prints(tmp_path):
         "experiment.init_random_frames=32", f"hydra.sweep.dir={out}", "logger=csv", cwd=tmp_path)
     assert not (tmp_path / "runs").exists()
     (folder,) = list((out / "fast" / default_reading() / "policy3_g").iterdir())
-    assert {p.name for p in folder.iterdir()} >= {"config.yaml", "overrides.yaml", "last.pt", "episodes.csv", "logs"}
+    assert {p.name for p in folder.iterdir()} >= {"config.yaml", "resume.yaml", "last.pt", "episodes.csv", "logs"}
     saved = yaml.safe_load((folder / "config.yaml").read_text())
     assert saved["algo"]["batch_size"] == 1280  # the fast tuning, as trained
     shown = run("train.py", *TINY, "experiment=fast", "experiment.num_envs=4", "experiment.max_frames=64",
@@ -81,8 +77,8 @@ def test_apps_write_only_their_output_folders(tmp_path):
     shipped = {p: hashlib.sha256(p.read_bytes()).hexdigest() for d in ("results", "figures", "checkpoints")
                for p in (ROOT / d).rglob("*") if p.is_file()}
     run("evaluate.py", "policy=policy_op", "scenario=s1", "episodes=2", cwd=tmp_path)
-    assert (tmp_path / "outputs" / "evaluate" / default_reading() / "policy_op" / "s1__episodes=2" / "summary.json").is_file()
-    run("reproduce.py", "table=5", "episodes=2", f"checkpoints_dir={tmp_path / 'none'}", cwd=tmp_path, check=False)
+    assert (tmp_path / "outputs" / "evaluate" / default_reading() / "policy_op" / "s1__episodes-2" / "summary.json").is_file()
+    run("reproduce.py", "table=5", "episodes=2", cwd=tmp_path)
     assert (tmp_path / "outputs" / "reproduce" / default_reading() / "table5.md").is_file()
     after = {p: hashlib.sha256(p.read_bytes()).hexdigest() for d in ("results", "figures", "checkpoints")
              for p in (ROOT / d).rglob("*") if p.is_file()}
@@ -93,7 +89,7 @@ def test_the_wheel_carries_the_configs(tmp_path):
     # Observation 4: `pip install .` gave "unknown scenario 'train'; available: []".
     source = tmp_path / "source"  # built from a copy: the build writes build/ and *.egg-info beside it
     source.mkdir()
-    for name in ("pyproject.toml", "README.md", "flock_torchrl", "conf"):
+    for name in ("pyproject.toml", "README.md", "flock_torchrl", "conf", "checkpoints"):
         (shutil.copytree if (ROOT / name).is_dir() else shutil.copy)(ROOT / name, source / name)
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
                     str(tmp_path), str(source)], check=True, capture_output=True, timeout=300)
@@ -104,12 +100,20 @@ def test_the_wheel_carries_the_configs(tmp_path):
         archive.extractall(site)
     assert "flock_torchrl/conf/train.yaml" in names and "flock_torchrl/conf/scenario/s3.yaml" in names
     assert "flock_torchrl/report/reference/table3.csv" in names
+    # The shipped policies travel with it, so the apps reach them from any folder (issue 18, item 4).
+    assert "flock_torchrl/checkpoints/paper_fit/policy3_g/seed0.pt" in names
     code = ("import flock_torchrl.config as c; from flock_torchrl import FlockingEnv; "
-            "env = FlockingEnv('s2', policy_id='policy3_g'); print(c.CONF_DIR, env.n_agents)")
+            "env = FlockingEnv('s2', policy_id='policy3_g'); print(c.CONF_DIR, env.n_agents, c.default_checkpoints_dir())")
     env = {**os.environ, "PYTHONPATH": str(site)}
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
                          timeout=300, check=True).stdout
-    assert out.strip() == f"{site / 'flock_torchrl' / 'conf'} 9"
+    assert out.strip() == f"{site / 'flock_torchrl' / 'conf'} 9 {site / 'flock_torchrl' / 'checkpoints'}"
+    evaluate = ("import sys; sys.argv = ['flock-evaluate', 'policy=policy3_g', 'episodes=2']; "
+                "from flock_torchrl.cli import evaluate_main; evaluate_main()")
+    proc = subprocess.run([sys.executable, "-c", evaluate], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "pooled over 3 checkpoints" in proc.stdout and str(site / "flock_torchrl" / "checkpoints") in proc.stdout
 
 
 def test_every_package_folder_is_packaged():
@@ -121,7 +125,7 @@ def test_every_package_folder_is_packaged():
              if p.is_dir() and p.name != "__pycache__"}
     configs = {".".join(("flock_torchrl",) + p.relative_to(ROOT).parts) for p in [ROOT / "conf", *(ROOT / "conf").rglob("*")]
                if p.is_dir()}
-    assert found | configs == listed
+    assert found | configs | {"flock_torchrl.checkpoints"} == listed  # checkpoints/: one package, files by glob
 
 
 @pytest.mark.parametrize("script", ["train.py", "evaluate.py", "reproduce.py", "figures.py", "tune_baselines.py",

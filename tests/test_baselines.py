@@ -15,8 +15,8 @@ from flock_torchrl.policies.baselines import OlfatiSaberParams, controller_param
 from flock_torchrl.policies.baselines import olfati_saber as os_
 from flock_torchrl.policies.baselines import vasarhelyi as va
 from flock_torchrl.policies.baselines.sensing import nearest_hits, neighbour_view
-from flock_torchrl.policies.registry import policy_config
-from flock_torchrl.run.evaluation import evaluate
+from flock_torchrl.policies.registry import policy_config_of
+from flock_torchrl.run.rollout import evaluate
 from flock_torchrl.world.geometry import Obstacles
 from flock_torchrl.world.sensors import laser_scan
 
@@ -26,7 +26,7 @@ BASELINES = ("policy_ma", "policy_op")
 
 def yaml_params(name):
     """The controller's parameters as conf/policy/<name>.yaml composes them."""
-    return controller_params(policy_config(name, "literal")[0])
+    return controller_params(policy_config_of(name, "literal")[0])
 
 
 def baseline_env(name, scenario, num_envs, seed, **kwargs):
@@ -240,7 +240,7 @@ def test_neighbours_outside_the_field_of_view_are_ignored():
 
 @pytest.mark.parametrize("name", BASELINES)
 def test_yaml_documents_every_parameter(name):
-    policy, scenario = policy_config(name, "literal")
+    policy, scenario = policy_config_of(name, "literal")
     params = controller_params(policy)
     assert set(policy.params) == {f.name for f in dataclasses.fields(params)}
     assert policy.kind == "rule" and scenario["action_mode"] == "velocity" and scenario["instinct"] is False
@@ -249,23 +249,23 @@ def test_yaml_documents_every_parameter(name):
 
 def test_command_line_params_reach_the_controller():
     cfg = compose_world("s1", "literal", "policy_op", ["policy.params.v_flock=2.0"])
-    from flock_torchrl.config import PolicyConfig, to_object
+    from flock_torchrl.config import PolicyConfig
 
     env = baseline_env("policy_op", "s1", 1, 0)
-    policy = make_baseline(to_object(cfg.policy, PolicyConfig, "policy"), env.cfg)
+    policy = make_baseline(PolicyConfig.from_config(cfg.policy), env.cfg)
     assert isinstance(policy, TensorDictModuleBase) and policy.params.v_flock == 2.0
     assert policy.env_cfg.action_mode == "velocity" and policy.env_cfg.half_fov == pytest.approx(math.pi / 4)
     assert ("agents", "action") in policy.out_keys and ("agents", "scan_obstacle") in policy.in_keys
 
 
 def test_bad_params_fail_naming_the_field():
-    policy = policy_config("policy_ma", "literal")[0]
+    policy = policy_config_of("policy_ma", "literal")[0]
     with pytest.raises(ConfigError, match="c1_gama"):
         controller_params(dataclasses.replace(policy, params={**policy.params, "c1_gama": 1.0}))
     with pytest.raises(ConfigError, match="c1_gamma"):  # a missing one too: every value lives in the YAML
         controller_params(dataclasses.replace(policy, params={k: v for k, v in policy.params.items()
                                                               if k != "c1_gamma"}))
-    op = policy_config("policy_op", "literal")[0]
+    op = policy_config_of("policy_op", "literal")[0]
     with pytest.raises(ConfigError, match="v_flock"):
         controller_params(dataclasses.replace(op, params={**op.params, "v_flock": -1.0}))
     with pytest.raises(ConfigError, match="'a'|params.a"):
@@ -273,7 +273,7 @@ def test_bad_params_fail_naming_the_field():
     with pytest.raises(ConfigError, match="h_beta"):
         controller_params(dataclasses.replace(policy, params={**policy.params, "h_beta": 1.0}))
     with pytest.raises(ConfigError, match="kind"):
-        make_baseline(policy_config("policy3_g")[0], FlockingEnv("s1", num_envs=1).cfg)
+        make_baseline(policy_config_of("policy3_g")[0], FlockingEnv("s1", num_envs=1).cfg)
     with pytest.raises(ConfigError, match="action_mode"):
         make_baseline(op, FlockingEnv("s1", num_envs=1).cfg)
 

@@ -129,7 +129,7 @@ def test_circles_that_just_touch_are_allowed():
 
 
 def test_unknown_scenario_and_unknown_field():
-    with pytest.raises(ConfigError, match="unknown choice 'nowhere'"):
+    with pytest.raises(ConfigError, match="Could not find 'scenario/nowhere'"):
         load_scenario("nowhere")
     with pytest.raises(ConfigError, match="wind_speed"):
         load_scenario("train", wind_speed=3.0)

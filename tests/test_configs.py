@@ -8,10 +8,13 @@ import pytest
 from omegaconf import OmegaConf
 
 from flock_torchrl import FlockingEnv
-from flock_torchrl.config import (ALGO_SCHEMAS, POLICY_SCENARIO_FIELDS, ConfigError, available, check_algo,
-                                  check_experiment, compose, scenario_config, to_object, ExperimentConfig)
-from flock_torchrl.run.evaluation import EVAL_SEED
-from flock_torchrl.run.trainer import check_train_config, make_train_config
+from flock_torchrl.config import (ALGO_SCHEMAS, EVAL_SEED, POLICY_SCENARIO_FIELDS, ConfigError, ExperimentConfig,
+                                  TrainConfig, algo_config, available, compose, scenario_config)
+from flock_torchrl.run.trainer import make_train_config
+
+
+def check_train_config(cfg):
+    return TrainConfig.from_config(cfg)
 
 ALL_POLICIES = ["policy1", "policy1_g", "policy2", "policy2_g", "policy3", "policy3_g", "policy4_g", "policy5_g",
                 "policyd_g", "policyp_g", "policy_ma", "policy_op"]
@@ -76,15 +79,15 @@ def test_every_group_yaml_composes(group):
         if group == "tuning":
             algo, _, experiment = name.partition("_")
             policy = {"sac": "policy3_g", "ddpg": "policyd_g", "ppo": "policyp_g"}[algo]
-            check_algo(make_train_config(policy, experiment).algo)
+            algo_config(make_train_config(policy, experiment).algo)
         elif group in ("scenario", "reading"):
             scenario_config(name if group == "scenario" else "train", reading=name if group == "reading" else None)
         else:
             cfg = compose("train", [f"{group}={name}"])
             if group == "algo":
-                check_algo(cfg.algo)
+                algo_config(cfg.algo)
             elif group == "experiment":
-                check_experiment(to_object(cfg.experiment, ExperimentConfig, "experiment"))
+                ExperimentConfig.from_config(cfg.experiment)
 
 
 def test_experiments_tune_the_learner_through_composition():
@@ -113,9 +116,13 @@ def test_what_is_shown_is_what_runs():
 
 
 def test_evaluation_seed_is_one_number():
+    # One YAML place (conf/world.yaml); every app reads it from there.
     assert compose("train").eval_seed == EVAL_SEED
-    assert compose("evaluate").seed == EVAL_SEED
-    assert compose("reproduce").seed == EVAL_SEED
+    for app in ("evaluate", "reproduce", "figures", "scaling"):
+        assert compose(app).seed == EVAL_SEED, app
+    hits = [p.name for p in __import__("flock_torchrl.config", fromlist=["CONF_DIR"]).CONF_DIR.rglob("*.yaml")
+            if str(EVAL_SEED) in p.read_text()]
+    assert hits == ["world.yaml"]
 
 
 @pytest.mark.parametrize("override, key", [
@@ -162,7 +169,7 @@ def test_cuda_on_a_machine_without_it_is_a_config_error():
 
 def test_rule_based_policy_is_not_trainable():
     with pytest.raises(ConfigError, match="rule-based") as info:
-        make_train_config("policy_ma", "tiny")
+        check_train_config(make_train_config("policy_ma", "tiny"))
     assert info.value.key == "policy"
     cfg = OmegaConf.create(OmegaConf.to_container(make_train_config("policy3_g", "tiny")))
     cfg.policy = OmegaConf.to_container(compose("world", ["policy=policy_ma"]).policy)
@@ -185,7 +192,7 @@ def test_readings_set_the_field_of_view_convention_and_the_spawn():
 
 
 def test_reading_is_one_choice_in_every_app():
-    for app in ("train", "evaluate", "reproduce", "figures", "tune_baselines", "ship"):
+    for app in ("train", "evaluate", "reproduce", "figures", "scaling", "tune_baselines", "ship"):
         assert compose(app, ["reading=paper_fit"]).scenario.reading == "paper_fit", app
     assert compose("world").scenario.reading in ("literal", "paper_fit")
 

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from flock_torchrl import FlockingEnv, evaluate, make_train_config, train
-from flock_torchrl.run.evaluation import goal_seeking_policy
+from flock_torchrl.policies.scripted import goal_seeking_policy
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 

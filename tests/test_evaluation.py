@@ -12,9 +12,11 @@ from tensordict import TensorDict
 
 from flock_torchrl import CheckpointError, ConfigError, FlockingEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from flock_torchrl.policies.registry import policy_config, policy_id
-from flock_torchrl.run import evaluation as ev
-from flock_torchrl.run.evaluation import EvaluationResult, evaluate, goal_seeking_policy, mean_std, wilson_interval
+from flock_torchrl.policies.registry import policy_config_of, policy_id
+from flock_torchrl.config import EVAL_SEED
+from flock_torchrl.policies.scripted import goal_seeking_policy
+from flock_torchrl.run.results import EvaluationResult, mean_std, wilson_interval
+from flock_torchrl.run.rollout import evaluate
 from flock_torchrl.world.metrics import METRIC_KEYS
 
 Z2 = 1.959963984540054 ** 2
@@ -23,7 +25,7 @@ Z2 = 1.959963984540054 ** 2
 def test_goal_seeking_swarm_in_s1_has_the_known_metrics():
     result = evaluate(goal_seeking_policy(), scenario="s1", n_episodes=6)
     e = result.episodes
-    assert result.n_episodes == 6 and result.policy == "GoalSeeking" and result.seed == ev.EVAL_SEED
+    assert result.n_episodes == 6 and result.policy == "GoalSeeking" and result.seed == EVAL_SEED
     # No obstacles: nothing to crash into, every swarm flies straight to the goal.
     assert e["reached"].all() and not e["crashed"].any() and e["success"].all()
     assert (e["safe_success"] <= e["success"]).all()
@@ -136,7 +138,7 @@ def test_policy_resolution_errors_name_the_problem(tmp_path):
         evaluate(str(tmp_path / "missing.pt"), n_episodes=1)
     with pytest.raises(ValueError, match="n_episodes"):
         evaluate(goal_seeking_policy(), n_episodes=0)
-    assert policy_config("Policy3-G")[1]["instinct"] is True
+    assert policy_config_of("Policy3-G")[1]["instinct"] is True
     assert policy_id("Policy-MA") == "policy_ma"
 
 
@@ -158,7 +160,7 @@ def test_every_policy_sees_the_same_starts():
     # the spawn draws, so with EVAL_SEED every policy starts from the same layouts.
     layouts = []
     for policy in (None, "policy3_g", "policy1", "policy_ma"):
-        td = FlockingEnv("s5", num_envs=8, seed=ev.EVAL_SEED, reading="literal", policy_id=policy,
+        td = FlockingEnv("s5", num_envs=8, seed=EVAL_SEED, reading="literal", policy_id=policy,
                          extras="physics").reset()
         layouts.append((td["agents", "position"], td["agents", "heading"], td["goal"], td["obstacles", "position"]))
     for other in layouts[1:]:

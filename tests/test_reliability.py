@@ -4,6 +4,7 @@ files, env misuse. Each test is an observation of issue 9 that failed before."""
 from __future__ import annotations
 
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from helpers import script_env
 
 from flock_torchrl import CheckpointError, FlockingEnv
 from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
@@ -51,23 +53,31 @@ def tiny(*overrides: str):
 
 # ---------------------------------------------------------------------------- 6: config errors
 @pytest.mark.parametrize("bad, key", [
-    ("scenario.n_uavs=abc", "scenario.n_uavs: expected an integer, got 'abc'"),
-    ("seed=abc", "seed: expected an integer"),
     ("seed=-1", "seed: must be an integer >= 0"),
+    ("seed=99999999999999999999", "seed: must be an integer >= 0 and <= 4294967295"),
     ("device=gpu0", "device: must be cpu, cuda"),
     ("device=cuda", "device: 'cuda'"),
     ("algo.lr_actor=-1", "algo.lr_actor: must be a positive"),
-    ("scenario.fov=7", "scenario.fov: must lie in (0, 2 pi]"),
-    ("policy=policy_ma", "policy: policy_ma is rule-based"),
+    ("scenario.fov=7", "scenario.fov: must be a positive finite number and <= 6.28319"),
+    ("policy=policy_ma", "policy: Policy-MA is rule-based"),
     ("experiment.workers=3", "experiment.workers: 3 must divide num_envs=4"),
 ])
 def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key):
     if bad == "device=cuda" and torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
     code, out, err = finish(start(*TINY, bad, cwd=tmp_path))
-    assert code == 2
+    assert code == 2, err
     assert err.strip().splitlines() == [f"error: {err.strip()[7:]}"] and err.startswith(f"error: {key}")
     assert list(tmp_path.iterdir()) == []  # no run folder, no .hydra, no log
+
+
+@pytest.mark.parametrize("bad, key", [("scenario.n_uavs=abc", "scenario.n_uavs"), ("seed=abc", "seed"),
+                                      ("policy=nope", "policy/nope"), ("algo.lr_critc=1", "lr_critc")])
+def test_composition_errors_are_hydras_own_and_leave_nothing(tmp_path, bad, key):
+    # A value of the wrong type, an unknown choice or key: Hydra's message (naming it), status 1.
+    code, out, err = finish(start(*TINY, bad, cwd=tmp_path))
+    assert code == 1 and key in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_sweep_is_checked_whole_before_any_job_runs(tmp_path):
@@ -76,6 +86,14 @@ def test_a_sweep_is_checked_whole_before_any_job_runs(tmp_path):
 
 
 # ---------------------------------------------------------------------------- 2: signals
+def resume_line(err: str) -> list[str]:
+    """The command a stopped run printed to continue it, as argv (run from the repository)."""
+    (line,) = [x for x in err.splitlines() if x.startswith("stopped by")]
+    command = shlex.split(line.split("resume with: ", 1)[1])
+    assert command[:2] == ["python", "scripts/train.py"], command
+    return [sys.executable, *command[1:]]
+
+
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path, signum, status):
     budget = ["experiment.max_frames=3200", "experiment.checkpoint_every_frames=64"]
@@ -87,11 +105,11 @@ def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path,
     assert code == status, err
     stopped = load_checkpoint(folder / "last.pt", kind="training")["counters"]["frames"]
     assert 64 <= stopped < 3200, "the signal did not land mid-run"
-    line = [x for x in err.splitlines() if x.startswith("stopped by")]
-    assert len(line) == 1 and f"resume with: python scripts/train.py resume={folder}" in line[0]
     assert "Traceback" not in err
-    code, out, err = finish(start(f"resume={folder}", cwd=tmp_path))
-    assert code == 0, err
+    # The printed command, run verbatim, continues the run.
+    resumed = subprocess.run(resume_line(err), cwd=ROOT, env=script_env(), capture_output=True, text=True,
+                             timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
     whole = train(tiny(*budget), tmp_path / "whole")
     a, b = load_checkpoint(whole.checkpoint), load_checkpoint(folder / "last.pt")
     assert a["counters"]["frames"] == b["counters"]["frames"] == 3200
@@ -101,16 +119,17 @@ def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path,
 
 
 def test_a_second_ctrl_c_aborts_at_once():
-    from flock_torchrl.run.trainer import _Signals
+    from flock_torchrl.run.trainer import Signals, Stopped
 
-    with _Signals() as signals:
+    before = signal.getsignal(signal.SIGINT)
+    with Signals() as signals:
         os.kill(os.getpid(), signal.SIGINT)
         time.sleep(0.01)
         assert signals.received == signal.SIGINT
-        with pytest.raises(KeyboardInterrupt):
+        with pytest.raises(Stopped):
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.01)
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGINT) is before
 
 
 # ---------------------------------------------------------------------------- 3: concurrent runs
@@ -240,7 +259,7 @@ def test_logs_after_kill_and_resume_equal_an_uninterrupted_runs(tmp_path):
     proc.kill()
     proc.wait()
     assert load_checkpoint(folder / "last.pt")["counters"]["frames"] < 2400
-    assert finish(start(f"resume={folder}", cwd=tmp_path))[0] == 0
+    assert finish(start("-cd", str(folder), "-cn", "resume", cwd=tmp_path))[0] == 0
     whole = tmp_path / "whole"
     assert finish(start(*TINY, *budget, f"hydra.run.dir={whole}", cwd=tmp_path))[0] == 0
     logs = sorted(p.relative_to(whole) for p in (whole / "logs" / "scalars").rglob("*.csv"))

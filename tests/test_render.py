@@ -13,7 +13,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from flock_torchrl import FlockingEnv
 from flock_torchrl.report.figures import (binned_mean_ci, make_figures, plot_trajectory, save_animation,
                                           training_curve, trajectory_grid)
-from flock_torchrl.run.evaluation import goal_seeking_policy
+from flock_torchrl.policies.scripted import goal_seeking_policy
 from flock_torchrl.world.frame import render_frame, rollout_states
 
 

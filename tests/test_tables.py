@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 import csv
+import gzip
+import io
 import math
 from pathlib import Path
 
 import pytest
 
 from flock_torchrl.io import write_csv
-from flock_torchrl.report.tables import (CLAIMS, KEY_COLUMNS, LEARNED, REFERENCE_DIR, VALUE_COLUMNS, claim_verdicts,
-                                         claims_markdown, comparison_rows, csv_columns, fidelity, fidelity_terms, load_reference, render_tables, reproduce,
-                                         table_entries)
-from flock_torchrl.run.evaluation import goal_seeking_policy
+from flock_torchrl.policies.scripted import goal_seeking_policy
+from flock_torchrl.report.claims import CLAIMS, LEARNED, claim_verdicts, fidelity, fidelity_terms
+from flock_torchrl.report.markdown import claims_markdown, render_tables
+from flock_torchrl.report.reference import (KEY_COLUMNS, REFERENCE_DIR, VALUE_COLUMNS, comparison_rows, csv_columns,
+                                            load_reference, table_entries)
+from flock_torchrl.report.reproduce import reproduce
+from helpers import run_script
 from flock_torchrl.world.metrics import CELL_METRICS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -20,9 +25,9 @@ SHARED_PAPER = Path("/work/shared/paper")
 
 
 def _read(path: Path) -> tuple[list[str], list[dict[str, str]]]:
-    with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        return list(reader.fieldnames or []), list(reader)
+    text = gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
+    reader = csv.DictReader(io.StringIO(text))
+    return list(reader.fieldnames or []), list(reader)
 
 
 @pytest.mark.parametrize("table", [3, 4, 5])
@@ -137,22 +142,30 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     assert len(rows) == 12 and by_policy["Policy3-G"]["n_episodes"] == "4"
     assert by_policy["Policy3-G"]["success_rate"] != "" and by_policy["Policy1"]["success_rate"] == ""
     assert by_policy["Policy1"]["note"] == "not requested"
-    _, episodes = _read(tmp_path / "results" / "table3_episodes.csv")
+    _, episodes = _read(tmp_path / "results" / "table3_episodes.csv.gz")
     assert len(episodes) == 4 and {e["policy"] for e in episodes} == {"Policy3-G"}
     _, seeds = _read(tmp_path / "results" / "table3_seeds.csv")
     assert len(seeds) == 1
     assert "INCOMPLETE" in (tmp_path / "results" / "fidelity.md").read_text()
 
 
-def test_reproduce_app_skips_missing_checkpoints_and_writes_only_its_folder(tmp_path, capsys):
-    from flock_torchrl.cli import reproduce_main
-
+def test_reproduce_app_checks_every_checkpoint_before_the_first_row(tmp_path):
+    # Nothing shipped where checkpoints_dir points: refused at once, naming the setting, nothing written.
     out = tmp_path / "out"
-    code = reproduce_main(["table=5", "episodes=2", f"checkpoints_dir={tmp_path / 'none'}",
-                           f"hydra.run.dir={out}"])
-    captured = capsys.readouterr()
-    assert code == 2 and "not evaluated" in captured.err and "skipped" in captured.out
-    text = (out / "table5.md").read_text()
-    assert "not evaluated" in text and text.count("| paper |") == 5
-    assert reproduce_main(["tabel=3"]) == 2 and "tabel" in capsys.readouterr().err
-    assert reproduce_main(["table=7"]) == 2 and "table" in capsys.readouterr().err
+    proc = run_script("reproduce.py", "table=5", "episodes=2", f"checkpoints_dir={tmp_path / 'none'}",
+                      f"hydra.run.dir={out}", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "checkpoints_dir=" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert not out.exists()
+    # A corrupted checkpoint among the shipped ones: refused before any row is evaluated.
+    shipped = tmp_path / "ckpt" / "paper_fit" / "policy3_g"
+    shipped.mkdir(parents=True)
+    (shipped / "seed0.pt").write_bytes(b"not a checkpoint")
+    proc = run_script("reproduce.py", "table=5", "episodes=2", "reading=paper_fit", f"checkpoints_dir={tmp_path / 'ckpt'}",
+                      f"hydra.run.dir={out}", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "seed0.pt" in proc.stderr and "weights_only=False" not in proc.stderr
+    assert not out.exists()
+    # Unknown keys are Hydra's own errors (exit 1); a bad table number is ours (exit 2).
+    bad_key = run_script("reproduce.py", "tabel=3", cwd=tmp_path, check=False)
+    assert bad_key.returncode == 1 and "tabel" in bad_key.stderr
+    bad_value = run_script("reproduce.py", "table=7", cwd=tmp_path, check=False)
+    assert bad_value.returncode == 2 and bad_value.stderr.startswith("error: table: must be one of 3, 4, 5")

@@ -174,12 +174,12 @@ def test_several_collector_processes(tmp_path):
 def test_compiled_learner_is_its_eager_twin():
     """compile=true changes the speed, not the learning: a few SAC updates agree with eager
     ones up to float round-off, and the compiled learner saves and restores its state."""
-    from flock_torchrl.config import check_algo, compose
+    from flock_torchrl.config import algo_config, compose
     from flock_torchrl.policies.learners import SACLearner
     from flock_torchrl.report.benchmark import replay_batches
 
     env, batches = replay_batches(128, 3)
-    cfg = check_algo(compose("train", ["experiment=paper"]).algo)
+    cfg = algo_config(compose("train", ["experiment=paper"]).algo)
     learners = []
     for compile in (False, True):
         torch.manual_seed(0)

@@ -20,12 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ..config import (POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, check_policy, compose_world,
-                      to_object)
+from ..config import POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, compose_world, default_checkpoints_dir
 from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, resolve_path
-
-# The project's shipped checkpoints: <root>/<reading>/<policy id>/seed<k>.pt
-CHECKPOINTS_DIR = Path("checkpoints")
 
 Module = Callable[[Any], Any]
 
@@ -71,27 +67,27 @@ def policy_id(name: str) -> str:
     return re.sub(r"[-\s]+", "_", str(name).strip()).lower()
 
 
-def policy_config(name: str, reading: str | None = None) -> tuple[PolicyConfig, dict[str, Any]]:
+def policy_config_of(name: str, reading: str | None = None) -> tuple[PolicyConfig, dict[str, Any]]:
     """A policy's composed config and the scenario fields it sets (``conf/policy/<id>.yaml``)."""
     pid = policy_id(name)
     if pid not in available("policy"):
         raise ConfigError("policy", f"unknown policy {name!r}; available: {', '.join(available('policy'))} "
                                     "or a checkpoint path")
     cfg = compose_world("train", reading, pid)
-    policy = check_policy(to_object(cfg.policy, PolicyConfig, "policy"))
+    policy = PolicyConfig.from_config(cfg.policy)
     scenario = {k: cfg.scenario[k] for k in POLICY_SCENARIO_FIELDS}
     return policy, scenario
 
 
-def shipped_checkpoints(name: str, reading: str, root: str | os.PathLike | None = None) -> list[Path]:
-    """``<root>/<reading>/<id>/seed<k>.pt`` of a policy, ordered by ``k`` (empty if none)."""
-    folder = Path(root if root is not None else CHECKPOINTS_DIR) / reading / policy_id(name)
-
+def shipped_checkpoints(name: str, folder: str | os.PathLike) -> list[Path]:
+    """``<folder>/<id>/seed<k>.pt`` of a policy, ordered by ``k`` (empty if none). ``folder`` is
+    a collection of shipped policies: ``<checkpoints_dir>/<reading>`` (the fast recipe) or the
+    paper recipe's ``<checkpoints_dir>/<reading>/paper_recipe``."""
     def seed_of(p: Path) -> tuple[int, str]:
         m = re.fullmatch(r"seed(\d+)", p.stem)
         return (int(m.group(1)) if m else 1 << 30, p.name)
 
-    return sorted(folder.glob("seed*.pt"), key=seed_of)
+    return sorted((Path(folder) / policy_id(name)).glob("seed*.pt"), key=seed_of)
 
 
 def checkpoint_handle(path: str | os.PathLike, device: str = "cpu") -> PolicyHandle:
@@ -123,6 +119,38 @@ def module_handle(module: Any) -> PolicyHandle:
         build_for=lambda env: module)
 
 
+def contender_handle(spec: Any, device: str = "cpu") -> PolicyHandle:
+    """A controller of the user's, as a row beside the paper's policies: a checkpoint file, or a
+    factory ``f(env, **kwargs)`` returning a TensorDict module, given by its import path
+    (``"mypkg.controllers.make"``) or as a mapping for Hydra's ``instantiate`` (``_target_``
+    plus its keyword arguments, and optionally ``name``, ``scenario`` — the policy scenario
+    fields it needs, e.g. ``{action_mode: velocity}`` — and ``extras``, the env keys it reads)."""
+    from hydra.utils import get_method, instantiate
+    from omegaconf import DictConfig, OmegaConf
+
+    if isinstance(spec, DictConfig):
+        spec = OmegaConf.to_container(spec, resolve=True)
+    if isinstance(spec, (str, os.PathLike)) and _is_path(spec):
+        handle = checkpoint_handle(resolve_path(spec), device)
+        handle.kind, handle.name = "contender", f"{handle.name} ({Path(spec).stem})"
+        return handle
+    options = {"_target_": str(spec)} if isinstance(spec, str) else dict(spec)
+    target = str(options.get("_target_", ""))
+    try:
+        get_method(target)
+    except Exception as exc:
+        raise ConfigError("contenders", f"cannot import the factory {target!r}: {exc}") from None
+    name = str(options.pop("name", target.rpartition(".")[2]))
+    scenario = dict(options.pop("scenario", {}) or {})
+    unknown = sorted(set(scenario) - set(POLICY_SCENARIO_FIELDS))
+    if unknown:
+        raise ConfigError("contenders", f"{name}: scenario may set only {', '.join(POLICY_SCENARIO_FIELDS)}; "
+                                        f"got {unknown}")
+    extras = tuple(options.pop("extras", ()) or ())
+    return PolicyHandle(id="contender", name=name, kind="contender", reading=None, scenario=scenario, extras=extras,
+                        origin=target, build_for=lambda env: instantiate(options, env=env))
+
+
 def _is_path(policy: Any) -> bool:
     if isinstance(policy, os.PathLike):
         return True
@@ -131,7 +159,7 @@ def _is_path(policy: Any) -> bool:
 
 
 def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.PathLike | None = None,
-            device: str = "cpu") -> list[PolicyHandle]:
+            device: str = "cpu", policy_config: PolicyConfig | None = None) -> list[PolicyHandle]:
     """Every policy ``policy`` stands for (one per shipped seed for a learned name).
 
     Args:
@@ -139,7 +167,10 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
             module, or a :class:`PolicyHandle`.
         reading: the world's reading (default: the composed default). A checkpoint of another
             reading is refused; a learned name looks under ``<checkpoints_dir>/<reading>/``.
-        checkpoints_dir: the shipped checkpoints' root (default ``checkpoints``).
+        checkpoints_dir: the shipped checkpoints' root (default: ``checkpoints_dir`` of
+            conf/world.yaml).
+        policy_config: the policy's composed config, when the caller has it (an app composed
+            with the user's config folders); otherwise ``conf/policy/<id>.yaml`` is composed.
     """
     if isinstance(policy, PolicyHandle):
         handles = [policy]
@@ -151,17 +182,21 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
             raise CheckpointError(f"no checkpoint at {path}")
         handles = [checkpoint_handle(path, device)]
     else:
-        config, scenario = policy_config(str(policy), reading)
+        if policy_config is not None:
+            config, scenario = policy_config, {}
+        else:
+            config, scenario = policy_config_of(str(policy), reading)
         if config.kind == "rule":
             handles = [rule_handle(config, scenario)]
         else:
             reading = reading or compose_world().scenario.reading
-            paths = shipped_checkpoints(config.id, reading, checkpoints_dir)
+            root = Path(checkpoints_dir if checkpoints_dir is not None else default_checkpoints_dir())
+            paths = shipped_checkpoints(config.id, root / reading)
             if not paths:
-                root = Path(checkpoints_dir if checkpoints_dir is not None else CHECKPOINTS_DIR)
                 raise CheckpointError(
-                    f"{config.name} is a learned policy and {root / reading / config.id} holds no seed*.pt; train "
-                    f"it (scripts/train.py policy={config.id} reading={reading}) or pass a checkpoint path")
+                    f"{config.name} is a learned policy and {root / reading / config.id} holds no seed*.pt; point "
+                    f"checkpoints_dir= at the shipped checkpoints, train it (scripts/train.py policy={config.id} "
+                    f"reading={reading}) or pass a checkpoint path")
             handles = [checkpoint_handle(p, device) for p in paths]
     if reading is not None:
         for handle in handles:
@@ -178,7 +213,7 @@ def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
     for the rule-based ones with ``extras=("physics", "laser")``.
     """
     if isinstance(policy, str) and not _is_path(policy):
-        config, _ = policy_config(policy, env.cfg.reading)
+        config, _ = policy_config_of(policy, env.cfg.reading)
         if config.kind == "learned":
             from .models import make_actor
 
@@ -188,5 +223,5 @@ def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
     return handle.build(env)
 
 
-__all__ = ["CHECKPOINTS_DIR", "PolicyHandle", "checkpoint_handle", "make_policy", "module_handle", "policy_config",
+__all__ = ["PolicyHandle", "checkpoint_handle", "contender_handle", "make_policy", "module_handle", "policy_config_of",
            "policy_id", "resolve", "rule_handle", "shipped_checkpoints"]

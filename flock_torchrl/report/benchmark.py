@@ -24,11 +24,11 @@ from typing import Callable
 import torch
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
-from ..config import check_algo, compose
+from ..config import algo_config, compose
 from ..io import write_text
 from ..policies.learners import SACLearner
 from ..policies.models import ACTION, LOG_PROB
-from ..run.trainer import TRANSITION_KEYS, _agentwise_done
+from ..run.trainer import TRANSITION_KEYS, agentwise_done
 from ..world.env import FlockingEnv
 
 
@@ -128,7 +128,7 @@ def replay_batches(batch_uav: int, count: int, device: str = "cpu") -> tuple[Flo
     td = env.reset()
     for _ in range(8):
         step, td = env.step_and_maybe_reset(env.rand_action(td))
-        buffer.extend(_agentwise_done(step.unsqueeze(-1), env.n_agents).select(*TRANSITION_KEYS, strict=False)
+        buffer.extend(agentwise_done(step.unsqueeze(-1), env.n_agents).select(*TRANSITION_KEYS, strict=False)
                       .reshape(-1))
     return env, [buffer.sample() for _ in range(count)]
 
@@ -188,7 +188,7 @@ def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, re
                  device: str = "cpu", compile_loss: bool = True) -> list[Row]:
     rows = []
     for batch_uav, recipe in batches:
-        cfg = check_algo(compose("train", [f"experiment={recipe}"]).algo)
+        cfg = algo_config(compose("train", [f"experiment={recipe}"]).algo)
         env, samples = replay_batches(batch_uav, updates, device)
         torch.manual_seed(0)
         candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": SACLearner(env, cfg, "state")}

@@ -25,14 +25,15 @@ from matplotlib.figure import Figure
 from ..io import atomic_write
 from ..policies.checkpoint import load_checkpoint
 from ..policies.registry import shipped_checkpoints
-from ..run.evaluation import EVAL_SEED, rollout_episode
+from ..config import EVAL_SEED
+from ..run.rollout import rollout_episode
 from ..run.trainer import EPISODE_COLUMNS
 from ..world.frame import (DPI, draw_moving, draw_static, draw_uavs, frame_image, image_size, rollout_states,
                            style_axes, world_extent)
-from .tables import PAPER_RECIPE_ROW, table_entries
+from .reference import PAPER_RECIPE_ROW, table_entries
 
 
-def _save_figure(fig: Figure, path: str | os.PathLike) -> Path:
+def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
     """``fig.savefig`` atomically (never a half-written file)."""
     FigureCanvasAgg(fig)
     path = Path(path)
@@ -83,7 +84,7 @@ def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | o
         ax.annotate(f"t={t * cfg.dt:.0f}s", (centre[0], centre[1] + 2.2 * length), ha="center", fontsize=6, zorder=5)
     style_axes(ax, extent, title)
     if path is not None:
-        _save_figure(fig, path)
+        save_figure(fig, path)
     return fig
 
 
@@ -134,7 +135,7 @@ def trajectory_grid(panels: Sequence[tuple[str, Any, Any] | tuple[str, None, str
     if suptitle:
         fig.suptitle(suptitle)
     if path is not None:
-        _save_figure(fig, path)
+        save_figure(fig, path)
     return fig
 
 
@@ -192,7 +193,7 @@ def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarra
         ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     if path is not None:
-        _save_figure(fig, path)
+        save_figure(fig, path)
     return fig
 
 
@@ -224,13 +225,34 @@ def _panel(title: str, name: str, scenario: str, reading: str, seed: int, device
     return f"{title} ({outcome})", rollout, env
 
 
+def check_figure_inputs(reading: str, figs: Sequence[int], checkpoints_dir: str | os.PathLike) -> None:
+    """Every shipped checkpoint the figures read, opened and digest-checked before anything is drawn."""
+    folder = Path(checkpoints_dir) / reading
+    for name in dict.fromkeys(e.policy for e in table_entries(3)):
+        for path in shipped_checkpoints(name, folder):
+            load_checkpoint(path)
+
+
+def _curves(names: Sequence[str], folder: Path) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """Training curves (episode, reward) of each policy's checkpoints in a collection folder."""
+    curves = {}
+    for name in names:
+        runs = [training_curve(p) for p in shipped_checkpoints(name, folder)]
+        runs = [r for r in runs if r[0].size]
+        if runs:
+            curves[name] = runs
+    return curves
+
+
 def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] = (4, 5, 6),
                  checkpoints_dir: str | os.PathLike = "checkpoints", seed: int = EVAL_SEED, device: str = "cpu",
-                 paper_run: str | os.PathLike | None = None, log: Callable[[str], None] = print) -> list[Path]:
+                 paper_recipe_dir: str | os.PathLike | None = None, log: Callable[[str], None] = print) -> list[Path]:
     """Write the paper's figures of one reading into ``out_dir``.
 
     * ``fig4_rewards.png``: training reward per learned policy, all its shipped seeds pooled
-      (the checkpoints carry their training curves); the paper recipe's run beside them.
+      (the checkpoints carry their training curves), the paper recipe's Policy3-G dashed beside
+      them; ``fig4_paper_recipe.png``: the same for every policy trained with the paper's recipe
+      (the recipe of the paper's own Fig. 4).
     * ``fig5_trajectories.png``: one seeded training-scenario episode per policy (3 x 4 grid),
       and Policy3-G's as an animation, ``policy3_g_train.gif``.
     * ``fig6_generalization.png``: one seeded episode per scenario S1-S5 (rows) and policy
@@ -241,15 +263,11 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
     out = Path(out_dir)
     written: list[Path] = []
     names = [e.policy for e in table_entries(3)]
+    paper = _curves(names, Path(paper_recipe_dir)) if paper_recipe_dir is not None else {}
     if 4 in figs:
-        curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
-        for name in names:
-            runs = [training_curve(p) for p in shipped_checkpoints(name, reading, checkpoints_dir)]
-            runs = [r for r in runs if r[0].size]
-            if runs:
-                curves[name] = runs
-        if paper_run is not None and Path(paper_run).is_file():
-            curves[PAPER_RECIPE_ROW] = [training_curve(paper_run)]
+        curves = _curves(names, Path(checkpoints_dir) / reading)
+        if "Policy3-G" in paper:
+            curves[PAPER_RECIPE_ROW] = paper["Policy3-G"]
         if curves:
             for name, runs in curves.items():
                 log(f"Fig. 4: {name}: {len(runs)} run(s), {sum(e.size for e, _ in runs)} episodes")
@@ -258,6 +276,13 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
             written.append(out / "fig4_rewards.png")
         else:
             log(f"Fig. 4: skipped, no checkpoint under {checkpoints_dir}/{reading}/ carries a training curve")
+        if paper:
+            for name, runs in paper.items():
+                log(f"Fig. 4, paper recipe: {name}: {len(runs)} run(s), {sum(e.size for e, _ in runs)} episodes")
+            plot_reward_curves(paper, out / "fig4_paper_recipe.png",
+                               title=f"Training reward, the paper's recipe ({reading}; mean and 95 % CI per 100 "
+                                     "episodes)")
+            written.append(out / "fig4_paper_recipe.png")
     if 5 in figs:
         log("Fig. 5: one training-scenario episode per policy")
         panels = [_panel(n, n, "train", reading, seed, device, checkpoints_dir, log) for n in names]
@@ -281,5 +306,5 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
     return written
 
 
-__all__ = ["FIG6_POLICIES", "FIG6_SCENARIOS", "binned_mean_ci", "make_figures", "plot_reward_curves",
-           "plot_trajectory", "save_animation", "training_curve", "trajectory_grid"]
+__all__ = ["FIG6_POLICIES", "FIG6_SCENARIOS", "binned_mean_ci", "check_figure_inputs", "make_figures", "plot_reward_curves",
+           "plot_trajectory", "save_animation", "save_figure", "training_curve", "trajectory_grid"]

@@ -18,8 +18,9 @@ from matplotlib.figure import Figure
 from ..config import scenario_config
 from ..io import write_csv, write_text
 from ..policies.registry import resolve
-from ..run.evaluation import EVAL_SEED, evaluate
-from .figures import _save_figure
+from ..config import EVAL_SEED
+from ..run.rollout import evaluate_handle
+from .figures import save_figure
 
 COLUMNS = ("n_uavs", "spawn_radius", "crashed_rate", "success_rate", "success_rate_low", "success_rate_high", "safe_success_rate",
            "safe_success_rate_low", "safe_success_rate_high", "d_c", "d_c_std", "d_min_uav", "d_min_uav_std",
@@ -35,13 +36,13 @@ def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100
     rows = []
     for n in sizes:
         start = time.perf_counter()
-        result = evaluate(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
+        result = evaluate_handle(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
         s = result.summary()
         radius = scenario_config("train", reading=reading, n_uavs=n).swarm_spawn_radius
         rows.append({"n_uavs": n, "spawn_radius": radius, "crashed_rate": result.rate("crashed").rate,
                      **{k: s[k] for k in COLUMNS if k in s},
                      "seconds": round(time.perf_counter() - start, 1)})
-        log(f"N={n}: {result}")
+        log(f"[{len(rows)}/{len(sizes)}] N={n}: {result}")
     out = Path(out_dir)
     write_csv(out / "scaling.csv", COLUMNS, rows)
     lines = [f"# {handle.name} trained with 5 UAVs, flown by N UAVs (reading `{reading}`)", "",
@@ -84,7 +85,7 @@ def plot(rows: Sequence[dict], title: str, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
-    _save_figure(fig, path)
+    save_figure(fig, path)
 
 
 __all__ = ["scaling"]

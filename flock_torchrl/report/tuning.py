@@ -22,10 +22,11 @@ import torch
 
 from ..io import write_csv
 from ..policies.baselines import controller_params
-from ..policies.registry import policy_config, rule_handle
-from ..run.evaluation import EVAL_SEED, EvaluationResult, policy_env, run_episodes
-from ..world.metrics import CELL_METRICS, METRIC_KEYS
-from .tables import load_reference
+from ..policies.registry import policy_config_of, rule_handle
+from ..run.results import EvaluationResult
+from ..run.rollout import evaluate_handle
+from ..world.metrics import CELL_METRICS
+from .reference import load_reference
 
 # The few parameters that decide how the flock meets obstacles and itself. Ranges follow the
 # rescaling notes (docs/baselines.md): spacing 2-4 m with r = 1.2 d inside the 5 m camera
@@ -55,19 +56,15 @@ def score(result: EvaluationResult) -> tuple[float, float, float]:
 
 
 def _run(policy, scenario: str, reading: str, episodes: int, seed: int, max_steps: int | None) -> EvaluationResult:
-    handle = rule_handle(policy, policy_config(policy.id, reading)[1])
-    env = policy_env(handle, scenario, reading, episodes, seed,
-                     env_overrides={"max_steps": max_steps} if max_steps else None)
-    start = time.perf_counter()
-    records, steps = run_episodes(env, handle.build(env))
-    return EvaluationResult(policy.name, scenario, reading, seed, {k: records[k] for k in METRIC_KEYS}, steps,
-                            time.perf_counter() - start, handle.origin)
+    handle = rule_handle(policy, policy_config_of(policy.id, reading)[1])
+    return evaluate_handle(handle, scenario, reading, episodes, seed,
+                           env_overrides={"max_steps": max_steps} if max_steps else None)
 
 
 def tune(name: str, reading: str, episodes: int, seed: int, max_steps: int,
          log: Callable[[str], None] = print) -> tuple[dict[str, float], list[dict]]:
     """Grid-tune one controller on the training scenario; ``(best point, one row per candidate)``."""
-    policy, _ = policy_config(name, reading)
+    policy, _ = policy_config_of(name, reading)
     base = controller_params(policy)
     log(f"\n== {policy.name} ({policy.controller}) on 'train' ({reading}): {episodes} episodes, env seed {seed}, "
         f"{max_steps} steps")
@@ -89,7 +86,7 @@ def tune(name: str, reading: str, episodes: int, seed: int, max_steps: int,
     return chosen, rows
 
 
-def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: Sequence[str],
+def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: Sequence[str], seed: int,
                  log: Callable[[str], None] = print) -> list[dict]:
     """The composed parameters on each scenario (evaluation seed), beside the paper's numbers."""
     paper = {("train", r["policy"]): r for r in load_reference(3)[1]}
@@ -97,8 +94,8 @@ def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: S
     rows = []
     for scenario in scenarios:
         for name in names:
-            policy, _ = policy_config(name, reading)
-            result = _run(policy, scenario, reading, episodes, EVAL_SEED, None)
+            policy, _ = policy_config_of(name, reading)
+            result = _run(policy, scenario, reading, episodes, seed, None)
             s = result.summary()
             crashed = result.rate("crashed").rate
             rows.append({"scenario": scenario, "policy": policy.name, **s, "crashed": crashed})
@@ -111,12 +108,10 @@ def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: S
 
 def tune_app(cfg, out_dir: Path, log: Callable[[str], None] = print) -> None:
     """``scripts/tune_baselines.py``: tune (or, ``evaluate=true``, measure) and write CSVs."""
-    if cfg.threads:
-        torch.set_num_threads(int(cfg.threads))
     reading = str(cfg.scenario.reading)
     start = time.perf_counter()
     if cfg.evaluate:
-        rows = evaluate_all(list(cfg.controllers), reading, int(cfg.episodes), list(cfg.scenarios), log)
+        rows = evaluate_all(list(cfg.controllers), reading, int(cfg.episodes), list(cfg.scenarios), cfg.eval_seed, log)
         write_csv(out_dir / "evaluation.csv", list(rows[0]), rows)
     else:
         for name in cfg.controllers:

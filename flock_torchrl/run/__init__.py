@@ -1,7 +1,9 @@
-"""Running things: training (collector, buffer, learner, checkpoints) and the evaluation protocol."""
+"""Running policies: training (:mod:`.trainer`), the evaluation protocol (:mod:`.rollout`) and its
+results (:mod:`.results`), shipping checkpoints (:mod:`.shipping`)."""
 
-from .evaluation import EVAL_SEED, EvaluationResult, evaluate, rollout_episode
-from .trainer import TrainingInterrupted, TrainResult, make_train_config, train
+from .results import EvaluationResult
+from .rollout import EVAL_SEED, evaluate, evaluate_handle, rollout_episode
+from .trainer import TrainResult, TrainingInterrupted, make_train_config, train
 
-__all__ = ["EVAL_SEED", "EvaluationResult", "TrainResult", "TrainingInterrupted", "evaluate", "make_train_config",
-           "rollout_episode", "train"]
+__all__ = ["EVAL_SEED", "EvaluationResult", "TrainResult", "TrainingInterrupted", "evaluate", "evaluate_handle",
+           "make_train_config", "rollout_episode", "train"]

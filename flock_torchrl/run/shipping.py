@@ -1,4 +1,9 @@
-"""Shipping trained policies: slim checkpoints into ``checkpoints/<reading>/`` with a manifest."""
+"""Shipping trained policies: slim checkpoints into ``checkpoints/<reading>/`` with a manifest.
+
+Two collections per reading, each ``<collection>/<policy>/seed<k>.pt``: the fast recipe's
+(``<checkpoints_dir>/<reading>``) and the paper recipe's (``paper_recipe_dir``, by default
+``<checkpoints_dir>/<reading>/paper_recipe``), each with its ``MANIFEST.md``.
+"""
 
 from __future__ import annotations
 
@@ -10,37 +15,66 @@ from ..io import write_text
 from ..policies.checkpoint import LAST, export_policy, load_checkpoint
 
 
-def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_dir: Path,
-                     paper_experiment: str = "paper", log: Callable[[str], None] = print) -> list[Path]:
-    """Export ``<runs>/<experiment>/<reading>/<policy>/seed<k>/last.pt`` (runs without extra
-    overrides only) to ``<checkpoints>/<reading>/<policy>/seed<k>.pt``, the paper recipe's
-    Policy3-G run to ``<checkpoints>/<reading>/paper_recipe/policy3_g_seed<k>.pt``, and write
-    ``<checkpoints>/<reading>/MANIFEST.md`` (frames, episodes, time, final evaluation)."""
-    dest_root = checkpoints_dir / reading
+def _finished_runs(root: Path) -> list[Path]:
+    """``<root>/<policy>/seed<k>/last.pt`` of the runs without extra overrides."""
+    return [s for s in sorted(root.glob(f"*/seed*/{LAST}")) if re.fullmatch(r"seed\d+", s.parent.name)]
+
+
+def ship_collection(runs: list[Path], dest: Path, reading: str, title: str, source: str,
+                    log: Callable[[str], None] = print) -> list[Path]:
+    """Export each run's ``last.pt`` to ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat
+    layout, ``<dest>/<policy>_seed<k>.pt``, move to their place) and write ``<dest>/MANIFEST.md``
+    listing every checkpoint the collection holds."""
     shipped = []
-    sources = sorted((runs_dir / experiment / reading).glob(f"*/seed*/{LAST}"))
-    sources = [s for s in sources if re.fullmatch(r"seed\d+", s.parent.name)]
-    paper = sorted((runs_dir / paper_experiment / reading / "policy3_g").glob(f"seed*/{LAST}"))
-    lines = [f"# Shipped checkpoints, reading `{reading}`", "",
-             f"Slim policies exported by `make ship-checkpoints` (scripts/ship.py) from `{runs_dir}/{experiment}/"
-             f"{reading}/` and the paper recipe's `{runs_dir}/{paper_experiment}/{reading}/policy3_g/`; "
+    for last in runs:
+        policy, seed = last.parent.parent.name, last.parent.name
+        target = dest / policy / f"{seed}.pt"
+        export_policy(last, target)
+        if load_checkpoint(target, kind="policy")["meta"]["reading"] != reading:
+            raise ValueError(f"{last} was trained under another reading than {reading!r}")
+        log(f"{last} -> {target}")
+        shipped.append(target)
+    for legacy in sorted(dest.glob("*_seed*.pt")):
+        policy, _, seed = legacy.stem.rpartition("_")
+        target = dest / policy / f"{seed}.pt"
+        if not target.exists():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            legacy.replace(target)
+            log(f"{legacy} -> {target} (the collection's layout)")
+        else:
+            legacy.unlink()
+            log(f"removed {legacy} (superseded by {target})")
+    held = sorted(dest.glob("*/seed*.pt"))
+    if not held:
+        return shipped
+    lines = [f"# {title}, reading `{reading}`", "",
+             f"Slim policies exported by `make ship-checkpoints` (scripts/ship.py) from `{source}`; "
              "`flock_torchrl.load_policy(path)` loads them. Minutes are the run's own training time.", "",
              "| policy | seed | experiment | frames | episodes | updates | minutes | final eval success | safe_success |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for last in [*sources, *paper]:
-        policy, seed = last.parent.parent.name, last.parent.name
-        is_paper = last in paper
-        dest = dest_root / ("paper_recipe" if is_paper else policy) / (f"{policy}_{seed}.pt" if is_paper else f"{seed}.pt")
-        export_policy(last, dest)
-        payload = load_checkpoint(dest, kind="policy")
-        if payload["meta"]["reading"] != reading:
-            raise ValueError(f"{last} was trained under {payload['meta']['reading']!r}, not {reading!r}")
+    for path in held:
+        payload = load_checkpoint(path, kind="policy")
         c, ev = payload["counters"], (payload.get("evaluations") or [{}])[-1]
-        lines.append(f"| {payload['meta']['policy']} | {seed[4:]} | {payload['meta']['experiment']} | {c['frames']} | "
+        lines.append(f"| {payload['meta']['policy']} | {path.stem[4:]} | {payload['meta']['experiment']} | {c['frames']} | "
                      f"{c['episodes']} | {c['updates']} | {c['seconds'] / 60:.1f} | "
                      f"{ev.get('success', float('nan')):.3f} | {ev.get('safe_success', float('nan')):.3f} |")
-        log(f"{last} -> {dest}")
-        shipped.append(dest)
-    write_text(dest_root / "MANIFEST.md", "\n".join(lines) + "\n")
-    log(f"wrote {dest_root / 'MANIFEST.md'} ({len(shipped)} checkpoints)")
+    write_text(dest / "MANIFEST.md", "\n".join(lines) + "\n")
+    log(f"wrote {dest / 'MANIFEST.md'} ({len(held)} checkpoints, {len(shipped)} exported now)")
     return shipped
+
+
+def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_dir: Path,
+                     paper_experiment: str, paper_recipe_dir: Path,
+                     log: Callable[[str], None] = print) -> list[Path]:
+    """Export ``<runs>/<experiment>/<reading>/<policy>/seed<k>/last.pt`` (runs without extra
+    overrides only) to ``<checkpoints>/<reading>/<policy>/seed<k>.pt``, and the paper recipe's
+    ``<runs>/<paper_experiment>/<reading>/...`` to ``<paper_recipe_dir>/<policy>/seed<k>.pt``."""
+    fast = _finished_runs(runs_dir / experiment / reading)
+    paper = _finished_runs(runs_dir / paper_experiment / reading)
+    return (ship_collection(fast, checkpoints_dir / reading, reading, "Shipped checkpoints",
+                            f"{runs_dir}/{experiment}/{reading}/", log)
+            + ship_collection(paper, paper_recipe_dir, reading, "Shipped checkpoints of the paper's recipe",
+                              f"{runs_dir}/{paper_experiment}/{reading}/", log))
+
+
+__all__ = ["ship_checkpoints", "ship_collection"]

@@ -12,7 +12,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from ..config import ScenarioConfig, check_scenario, scenario_config
+from ..config import ScenarioConfig, scenario_config
 from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, episode_summary, new_accumulator
 from .spawn import check_spawn_feasible, sample_layout
@@ -81,7 +81,7 @@ class FlockingEnv(EnvBase):
                  policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
                  **overrides: Any) -> None:
         if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
-            cfg = check_scenario(scenario)
+            cfg = ScenarioConfig.from_config(scenario)  # checked once: a checked scenario is taken as it is
         else:
             cfg = scenario_config(scenario, reading=reading, policy=policy_id, **overrides)
         check_spawn_feasible(cfg)

@@ -1,0 +1,207 @@
+"""Reproduce one of the paper's tables: evaluate every row, write ours beside the paper's.
+
+:func:`reproduce` evaluates the rows of Table III, IV or V under one reading (the section 5
+protocol: ``episodes`` per checkpoint, the evaluation seed, deterministic actions; a learned
+policy pools its shipped seeds) and writes ``table<k>.md`` / ``.csv``, ``table<k>_seeds.csv``
+(one row per checkpoint), ``table<k>_episodes.csv.gz`` (one row per episode) and, through
+:func:`~flock_torchrl.report.markdown.render_tables`, ``fidelity.md`` and ``summary.md``.
+
+Two recipes: ``fast`` reads the shipped checkpoints ``<checkpoints_dir>/<reading>/<id>/seed<k>.pt``;
+``paper`` (Table III only) reads the paper recipe's ``<paper_recipe_dir>/<id>/seed<k>.pt`` and
+writes ``table3_paper_recipe.*``. Besides the paper's rows sit extra rows, marked in the
+``extra`` column and never part of the fidelity score or the claims: Table III's paper-recipe
+Policy3-G, and any *contenders* (a checkpoint file, or the import path of a factory
+``f(env) -> TensorDict module``), evaluated under the same protocol in every row's scenario.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+from ..config import EVAL_SEED, ConfigError
+from ..io import write_csv
+from ..policies.checkpoint import CheckpointError, load_checkpoint
+from ..policies.registry import PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints
+from ..run.results import EvaluationResult
+from ..run.rollout import evaluate_handle
+from .markdown import render_tables
+from .reference import (KEY_COLUMNS, PAPER_RECIPE_ROW, TABLE_NUMBERS, TableEntry, comparison_row, comparison_rows,
+                        csv_columns, table_entries)
+
+RECIPES = ("fast", "paper")
+
+
+def table_stem(table: int, recipe: str = "fast") -> str:
+    """``table3`` or ``table3_paper_recipe``: the files of one table."""
+    return f"table{table}" if recipe == "fast" else f"table{table}_paper_recipe"
+
+
+@dataclass
+class Row:
+    """What one row of a table evaluates: its key, its scenario, the policies it pools."""
+
+    entry: TableEntry
+    handles: list[PolicyHandle]
+    extra: str = ""          # "" for the paper's rows; else what the row is (paper recipe, a contender)
+
+    @property
+    def key(self) -> tuple[str, ...]:
+        return self.entry.key
+
+
+def _collection(recipe: str, reading: str, checkpoints_dir: str | Path, paper_recipe_dir: str | Path | None) -> Path:
+    if recipe == "paper":
+        if paper_recipe_dir is None:
+            raise ConfigError("paper_recipe_dir", "the paper recipe's table needs its checkpoints folder")
+        return Path(paper_recipe_dir)
+    return Path(checkpoints_dir) / reading
+
+
+def plan(table: int, reading: str, checkpoints_dir: str | Path = "checkpoints", paper_recipe_dir: str | Path | None = None,
+         only: Sequence[str] | None = None, recipe: str = "fast", contenders: Sequence[Any] = (),
+         device: str = "cpu", policies: Mapping[str, Any] | None = None) -> tuple[list[Row], dict[tuple, str]]:
+    """The rows to evaluate, every checkpoint among them opened and digest-checked now (before
+    the first episode), and the notes of the rows left out. A learned policy without
+    checkpoints is an error under the fast recipe (the shipped set is complete) and a noted,
+    empty row under the paper recipe (not every policy was trained with it)."""
+    if table not in TABLE_NUMBERS:
+        raise ConfigError("table", f"must be one of {', '.join(map(str, TABLE_NUMBERS))}, got {table}")
+    if recipe not in RECIPES:
+        raise ConfigError("recipe", f"must be one of {', '.join(RECIPES)}, got {recipe!r}")
+    if recipe == "paper" and table != 3:
+        raise ConfigError("recipe", "the paper recipe trained the policies of Table III only (table=3)")
+    entries = table_entries(table)
+    names = {e.policy for e in entries}
+    unknown = sorted(set(only or ()) - names)
+    if unknown:
+        raise ConfigError("only", f"{unknown} are not rows of Table {table}; rows: {sorted(names)}")
+    folder = _collection(recipe, reading, checkpoints_dir, paper_recipe_dir)
+    rows, notes, cache = [], {}, {}
+    for entry in entries:
+        if only and entry.policy not in only:
+            notes[entry.key] = "not requested"
+            continue
+        if entry.policy not in cache:
+            cache[entry.policy] = _handles(entry.policy, reading, folder, recipe, device, (policies or {}))
+        handles = cache[entry.policy]
+        if not handles:
+            notes[entry.key] = "not trained with the paper recipe"
+            continue
+        rows.append(Row(entry, handles))
+    if table == 3 and recipe == "fast" and paper_recipe_dir is not None and (not only or "Policy3-G" in only):
+        paper = shipped_checkpoints("policy3_g", Path(paper_recipe_dir))
+        if paper:
+            rows.append(Row(TableEntry((PAPER_RECIPE_ROW,), "Policy3-G", "train"),
+                            [resolve(p, reading, device=device)[0] for p in paper], extra="paper recipe"))
+    for spec in contenders:
+        handle = contender_handle(spec, device=device)
+        for entry in _contender_entries(table, entries):
+            rows.append(Row(TableEntry(_contender_key(table, entry, handle.name), handle.name, entry.scenario,
+                                       dict(entry.env_overrides)), [handle], extra=f"contender: {handle.origin}"))
+    return rows, notes
+
+
+def _handles(name: str, reading: str, folder: Path, recipe: str, device: str,
+             given: Mapping[str, Any]) -> list[PolicyHandle]:
+    if name in given:  # tests: a module, a checkpoint, or a list of them
+        items = given[name] if isinstance(given[name], (list, tuple)) else [given[name]]
+        return [h for item in items for h in resolve(item, reading, device=device)]
+    config, _ = policy_config_of(name, reading)
+    if config.kind == "rule":
+        return resolve(name, reading, device=device)
+    paths = shipped_checkpoints(config.id, folder)
+    if not paths and recipe == "fast":
+        raise CheckpointError(f"{config.name}: {folder / config.id} holds no seed*.pt; point checkpoints_dir= at the "
+                              f"shipped checkpoints, or evaluate the other rows with only=[...]")
+    for path in paths:
+        load_checkpoint(path)  # a corrupted or foreign file fails now, naming itself
+    return [h for p in paths for h in resolve(p, reading, device=device)]
+
+
+def _contender_entries(table: int, entries: Sequence[TableEntry]) -> list[TableEntry]:
+    """One entry per distinct evaluation of a table (its scenarios; Table V's tau_v values)."""
+    seen, out = set(), []
+    for entry in entries:
+        what = (entry.scenario, tuple(sorted(entry.env_overrides.items())))
+        if what not in seen:
+            seen.add(what)
+            out.append(entry)
+    return out
+
+
+def _contender_key(table: int, entry: TableEntry, name: str) -> tuple[str, ...]:
+    if table == 3:
+        return (name,)
+    if table == 4:
+        return (entry.key[0], name)
+    return (f"{entry.key[0]} ({name})",)
+
+
+def check_table_inputs(table: int, reading: str, checkpoints_dir: str | Path, paper_recipe_dir: str | Path | None,
+                       only: Sequence[str] = (), recipe: str = "fast", contenders: Sequence[Any] = ()) -> None:
+    """Everything a table needs, checked before anything runs (:func:`plan`)."""
+    plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders)
+
+
+def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SEED, device: str = "cpu",
+              checkpoints_dir: str | Path = "checkpoints", out_dir: str | Path = ".",
+              policies: Mapping[str, Any] | None = None, only: Sequence[str] | None = None,
+              episodes_csv: bool = True, paper_recipe_dir: str | Path | None = None, recipe: str = "fast",
+              contenders: Sequence[Any] = (), log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Evaluate everything a paper table needs under ``reading`` and write it to ``out_dir``.
+
+    Args:
+        policies: policy name -> a module / checkpoint (or a list) used instead (tests).
+        only: evaluate only these policy names.
+        recipe: ``fast`` (the shipped checkpoints) or ``paper`` (Table III of the paper recipe).
+        contenders: checkpoint paths or factory import paths (``pkg.module.make``, or a mapping
+            with ``_target_``, ``name``, ``scenario`` and ``extras``): extra rows.
+    """
+    rows_to_run, notes = plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders, device,
+                              policies)
+    results: dict[tuple[str, ...], EvaluationResult] = {}
+    extra_rows, seed_rows, episode_rows = [], [], []
+    t0 = time.perf_counter()
+    for i, row in enumerate(rows_to_run, 1):
+        entry = row.entry
+        parts = [evaluate_handle(h, entry.scenario, reading, episodes, seed, device, entry.env_overrides)
+                 for h in row.handles]
+        result = EvaluationResult.pooled(parts)
+        result.policy = entry.policy
+        label = " / ".join(entry.key)
+        log(f"[table {table}, {i}/{len(rows_to_run)}, {time.perf_counter() - t0:.0f} s] {label}: {result}")
+        note = f"{len(parts)} checkpoints pooled ({result.n_episodes} episodes)" if len(parts) > 1 else ""
+        if row.extra:
+            extra = comparison_row(table, entry.key, result.summary(), None, "; ".join(x for x in (row.extra, note) if x),
+                                   len(parts))
+            extra["extra"] = row.extra
+            extra_rows.append(extra)
+        else:
+            results[entry.key] = result
+            if note:
+                notes[entry.key] = note
+        key_cols = dict(zip(KEY_COLUMNS[table], entry.key))
+        for part in result.parts or [result]:
+            seed_rows.append({**key_cols, "extra": row.extra, "checkpoint": part.source, **part.summary(),
+                              "rollout_steps": part.rollout_steps, "wall_time_s": round(part.wall_time_s, 2)})
+            if episodes_csv:
+                episode_rows += [{**key_cols, "extra": row.extra, "checkpoint": part.source, **rec}
+                                 for rec in part.records()]
+    rows = comparison_rows(table, results, notes) + extra_rows
+    out_dir = Path(out_dir)
+    stem = table_stem(table, recipe)
+    csv_path = write_csv(out_dir / f"{stem}.csv", csv_columns(table), rows)
+    if seed_rows:
+        write_csv(out_dir / f"{stem}_seeds.csv", list(seed_rows[0]), seed_rows)
+    if episode_rows:
+        write_csv(out_dir / f"{stem}_episodes.csv.gz", list(episode_rows[0]), episode_rows)
+    score = render_tables(out_dir, reading, episodes, seed)
+    log(f"[table {table}] {reading}, {recipe} recipe: wrote {out_dir / f'{stem}.md'} and {csv_path} "
+        f"({len(rows_to_run)} rows evaluated, {time.perf_counter() - t0:.1f} s); {score}")
+    return {"rows": rows, "markdown": out_dir / f"{stem}.md", "csv": csv_path, "failed": [], "fidelity": score}
+
+
+__all__ = ["RECIPES", "Row", "check_table_inputs", "plan", "reproduce", "table_stem"]

@@ -1,0 +1,155 @@
+"""The evaluation protocol of docs/specification.md section 5: many seeded episodes in one batched rollout.
+
+:func:`evaluate_handle` builds one :class:`~flock_torchrl.FlockingEnv` with ``num_envs =
+n_episodes`` in the policy's world, resets it once and steps the policy (deterministic
+actions, no gradients, no auto-reset) until every world has finished one episode; each
+world's metrics are read at its first ``done``, and the worlds still running continue in a
+smaller env (:meth:`FlockingEnv.subset`). Every policy sees the same starts: the env is
+seeded with :data:`EVAL_SEED` and draws all ``n_episodes`` layouts in its single reset.
+:func:`evaluate` resolves what a policy argument stands for (a learned policy pools its
+shipped seeds) and evaluates each.
+
+Example:
+    >>> from flock_torchrl.policies.scripted import goal_seeking_policy
+    >>> from flock_torchrl.run.rollout import evaluate
+    >>> result = evaluate(goal_seeking_policy(), scenario="s1", n_episodes=8)
+    >>> result.rate("success").rate
+    1.0
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from typing import Any, Mapping, Sequence
+
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from ..config import EVAL_SEED, ConfigError, ScenarioConfig, scenario_config
+from ..policies.registry import PolicyHandle, resolve
+from ..world.env import FlockingEnv
+from ..world.metrics import METRIC_KEYS
+from .results import EvaluationResult
+
+
+def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
+               reading: str | None = None, num_envs: int = 1, seed: int | None = EVAL_SEED,
+               device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
+               extras: Sequence[str] = ()) -> FlockingEnv:
+    """An env of a scenario in the policy's world: its reading, its scenario fields and the
+    env keys it reads. A complete scenario (not a name) is used as given and must agree with
+    the policy's fields; the reading must match a checkpoint's."""
+    overrides = dict(env_overrides or {})
+    extras = tuple(sorted({*handle.extras, *extras}))
+    if isinstance(scenario, str):
+        reading = reading or handle.reading
+        policy_id = handle.id if handle.kind in ("learned", "rule") else None
+        env = FlockingEnv(scenario, num_envs=num_envs, device=device, seed=seed, reading=reading,
+                          policy_id=policy_id, extras=extras, **{**handle.scenario, **overrides})
+    else:
+        cfg = scenario_config(scenario, **overrides)
+        for key, value in handle.scenario.items():
+            mine = getattr(cfg, key)
+            if mine != value and not (isinstance(value, float) and math.isclose(mine, value)):
+                raise ConfigError(f"scenario.{key}", f"is {mine!r} here, but {handle.origin} sets {value!r}")
+        env = FlockingEnv(cfg, num_envs=num_envs, device=device, seed=seed, extras=extras)
+    handle.check_reading(env.cfg.reading)
+    return env
+
+
+def run_episodes(env: FlockingEnv, policy: Any) -> tuple[TensorDict, int]:
+    """Step ``policy`` in ``env`` from one reset until every world has been done once.
+
+    Worlds that finish are recorded and dropped: the others continue in
+    ``env.subset(running)`` (the same trajectories; S4 noise draws aside). Runs under
+    ``ExplorationType.DETERMINISTIC`` and ``torch.no_grad()``.
+
+    Returns:
+        ``(episodes, steps)``: the ``"episode"`` TensorDict ``[B]`` of each world at its first
+        ``done`` (on the CPU), and the number of steps the rollout took.
+    """
+    limit = env.cfg.max_steps
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        records = td["episode"].clone()
+        rows = torch.arange(env.num_envs, device=env.device)  # original world index of each batch row
+        steps = 0
+        while rows.numel():
+            if steps >= limit:
+                raise RuntimeError(f"{rows.numel()} episodes still running after {steps} steps; "
+                                   f"the env should truncate at max_steps={limit}")
+            td = env.step(policy(td))["next"]
+            steps += 1
+            done = td["done"].reshape(-1)
+            if bool(done.any()):
+                records[rows[done]] = td["episode"][done]
+                keep = (~done).nonzero().squeeze(-1)
+                if keep.numel():
+                    env, td = env.subset(keep), td[keep]
+                rows = rows[keep]
+    return records.cpu(), steps
+
+
+def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "train", reading: str | None = None,
+             n_episodes: int = 500, seed: int = EVAL_SEED, device: str | torch.device = "cpu",
+             env_overrides: Mapping[str, Any] | None = None, max_steps: int | None = None, *,
+             checkpoints_dir: str | os.PathLike | None = None) -> EvaluationResult:
+    """Evaluate a policy on ``n_episodes`` seeded episodes of a scenario (section 5 protocol).
+
+    Args:
+        policy: a TensorDict module, a checkpoint path, a policy id or paper name (a learned
+            one pools all its shipped seeds: one run of ``n_episodes`` per seed), or a
+            :class:`~flock_torchrl.policies.PolicyHandle`.
+        scenario: ``train``, ``s1`` ... ``s5``, ``tau_v``, or a complete scenario.
+        reading: the world's reading (default: a checkpoint's own, else the composed default).
+        seed: env seed; :data:`EVAL_SEED` gives every policy the same starts and goals.
+        env_overrides: scenario fields on top of the policy's (e.g. ``{"tau_v": 0.5}``).
+        max_steps: episode limit T_max override.
+        checkpoints_dir: root of the shipped checkpoints (for a learned policy's name).
+    """
+    if not isinstance(n_episodes, int) or isinstance(n_episodes, bool) or n_episodes < 1:
+        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    overrides = dict(env_overrides or {})
+    if max_steps is not None:
+        overrides["max_steps"] = int(max_steps)
+    results = [evaluate_handle(handle, scenario, reading, n_episodes, seed, device, overrides)
+               for handle in resolve(policy, reading, checkpoints_dir, device=str(device))]
+    return EvaluationResult.pooled(results)
+
+
+def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
+                    reading: str | None = None, n_episodes: int = 500, seed: int = EVAL_SEED,
+                    device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None
+                    ) -> EvaluationResult:
+    """One policy (one checkpoint, controller or module) on ``n_episodes`` seeded episodes: the
+    protocol's unit that :func:`evaluate`, the apps, the tables and the tuning all run."""
+    start = time.perf_counter()
+    env = policy_env(handle, scenario, reading, n_episodes, seed, device, env_overrides)
+    records, steps = run_episodes(env, handle.build(env))
+    return EvaluationResult(
+        policy=handle.name, scenario=env.cfg.name, reading=env.cfg.reading, seed=seed,
+        episodes={k: records[k].clone() for k in METRIC_KEYS}, rollout_steps=steps,
+        wall_time_s=time.perf_counter() - start, source=handle.origin)
+
+
+def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = None, seed: int = EVAL_SEED,
+                    device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
+                    checkpoints_dir: str | os.PathLike | None = None) -> tuple[TensorDict, FlockingEnv]:
+    """One seeded episode of one world, kept step by step (for plots and animations), with the
+    ``physics`` keys. The first of the policy's resolved checkpoints acts; the env has one
+    world seeded with ``seed``, so every policy given that seed starts from the same layout.
+
+    Returns:
+        ``(rollout, env)``: the rollout TensorDict ``[1, T]`` up to the first ``done`` and the env.
+    """
+    handle = resolve(policy, reading, checkpoints_dir, device=str(device))[0]
+    env = policy_env(handle, scenario, reading, 1, seed, device, env_overrides, extras=("physics",))
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        rollout = env.rollout(env.cfg.max_steps, handle.build(env), break_when_any_done=True)
+    return rollout.cpu(), env
+
+
+__all__ = ["EVAL_SEED", "evaluate", "evaluate_handle", "policy_env", "rollout_episode", "run_episodes"]
