@@ -254,12 +254,43 @@ def checked(app: str, cfg: DictConfig, out: Path) -> Schema:
     return obj
 
 
-def _guard(fn: Callable[[], Any]) -> Any:
-    """Run ``fn``; report this project's errors as one line with exit status 2."""
+def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
+    """Run ``fn``; report this project's errors as one line with exit status 2 (a config error
+    also names the file its group's choice came from, when that is a file)."""
     try:
         return fn()
     except _errors() as exc:
-        fail(exc)
+        source = _source_of(config, getattr(exc, "key", "")) if config is not None else None
+        fail(f"{exc} (in {source})" if source else exc)
+
+
+def _source_of(config: DictConfig, key: str) -> str | None:
+    """The YAML file behind the group a dotted ``key`` belongs to (``scenario.n_uavs`` ->
+    ``.../scenario/corridor.yaml``), from the composed config's own record of its choices and
+    search path; ``None`` when it is not a file."""
+    from importlib.resources import files
+
+    group = (key or "").split(".")[0]
+    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
+    if not group or hydra is None:
+        return None
+    choice = hydra.runtime.choices.get(group)
+    if not choice:
+        return None
+    for source in hydra.runtime.config_sources:
+        path, schema = str(source.path), str(source.schema)
+        try:
+            if schema == "file":
+                candidate = Path(path) / group / f"{choice}.yaml"
+                if candidate.is_file():
+                    return str(candidate)
+            elif schema == "pkg":
+                candidate = files(path) / group / f"{choice}.yaml"
+                if candidate.is_file():
+                    return f"pkg://{path}/{group}/{choice}.yaml"
+        except (ModuleNotFoundError, TypeError, ValueError):
+            continue
+    return None
 
 
 class PreRunCheck(Callback):
@@ -272,7 +303,7 @@ class PreRunCheck(Callback):
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         out = Path(str(config.hydra.run.dir))
-        _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out))
+        _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         _guard(lambda: _check_launcher(config))
@@ -285,7 +316,7 @@ class PreRunCheck(Callback):
         for overrides in jobs:
             job = loader.load_sweep_config(config, list(overrides))
             out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
-            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out))
+            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out), job)
 
 
 def sweep_jobs(config: DictConfig) -> list[list[str]] | None:

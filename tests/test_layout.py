@@ -45,3 +45,38 @@ def test_imports_only_point_down(path):
         if other == "package" or other == own:
             continue
         assert RANK[other] <= RANK[own], f"{path.relative_to(PACKAGE)} ({own}) imports {name} ({other})"
+
+
+def test_no_private_name_crosses_a_module():
+    """A module imports only the public names of another (no ``from .x import _y``)."""
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("flock_torchrl")):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                assert not private, f"{path.relative_to(PACKAGE)} imports {private} from {node.module}"
+
+
+DOC_SOURCES = [*PACKAGE.rglob("*.py"), *(PACKAGE.parent / "conf").rglob("*.yaml"), *(PACKAGE.parent / "docs").glob("*.md"),
+               PACKAGE.parent / "README.md", *(PACKAGE.parent / "scripts").glob("*.py")]
+
+
+def test_docs_name_files_and_sections_that_exist():
+    """Every ``docs/<file>.md`` a file names exists, a quoted section of it is one of its headings,
+    and ``docs/specification.md section N`` is one of the specification's numbered sections."""
+    import re
+
+    root = PACKAGE.parent
+    for source in DOC_SOURCES:
+        text = source.read_text()
+        for name in set(re.findall(r"docs/([A-Za-z_]+\.md)", text)):
+            assert (root / "docs" / name).is_file(), f"{source.relative_to(root)} names docs/{name}"
+        for name, section in re.findall(r'docs/([A-Za-z_]+\.md),? "([^"]+)"', text):
+            headings = [h.lstrip("#").strip() for h in (root / "docs" / name).read_text().splitlines()
+                        if h.startswith("#")]
+            assert any(h.startswith(section) for h in headings), \
+                f"{source.relative_to(root)} names section {section!r} of docs/{name}"
+        spec = [h for h in (root / "docs" / "specification.md").read_text().splitlines() if h.startswith("## ")]
+        for number in re.findall(r"docs/specification\.md,? sections? (\d+)", text):
+            assert any(h.startswith(f"## {number}.") for h in spec), f"{source.relative_to(root)}: section {number}"
+        for stray in ("BASELINES.md", "SPEC.md", "STYLE.md"):
+            assert stray not in text, f"{source.relative_to(root)} names {stray}, a file outside the repository"

@@ -60,19 +60,25 @@ def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[st
     return env
 
 
-def run_episodes(env: FlockingEnv, policy: Any) -> tuple[TensorDict, int]:
+def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
+                 label: str = "episodes") -> tuple[TensorDict, int]:
     """Step ``policy`` in ``env`` from one reset until every world has been done once.
 
     Worlds that finish are recorded and dropped: the others continue in
     ``env.subset(running)`` (the same trajectories; S4 noise draws aside). Runs under
-    ``ExplorationType.DETERMINISTIC`` and ``torch.no_grad()``.
+    ``ExplorationType.DETERMINISTIC`` and ``torch.no_grad()``. ``progress``: a bar of finished
+    episodes on stderr (``None``: only when stderr is a terminal).
 
     Returns:
         ``(episodes, steps)``: the ``"episode"`` TensorDict ``[B]`` of each world at its first
         ``done`` (on the CPU), and the number of steps the rollout took.
     """
+    from tqdm.auto import tqdm
+
     limit = env.cfg.max_steps
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+    bar = tqdm(total=env.num_envs, desc=label, unit="episode", leave=False, dynamic_ncols=True,
+               disable=None if progress is None else not progress)
+    with bar, torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         records = td["episode"].clone()
         rows = torch.arange(env.num_envs, device=env.device)  # original world index of each batch row
@@ -85,6 +91,7 @@ def run_episodes(env: FlockingEnv, policy: Any) -> tuple[TensorDict, int]:
             steps += 1
             done = td["done"].reshape(-1)
             if bool(done.any()):
+                bar.update(int(done.sum()))
                 records[rows[done]] = td["episode"][done]
                 keep = (~done).nonzero().squeeze(-1)
                 if keep.numel():
@@ -128,7 +135,7 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
     protocol's unit that :func:`evaluate`, the apps, the tables and the tuning all run."""
     start = time.perf_counter()
     env = policy_env(handle, scenario, reading, n_episodes, seed, device, env_overrides)
-    records, steps = run_episodes(env, handle.build(env))
+    records, steps = run_episodes(env, handle.build(env), label=f"{handle.name} on {env.cfg.name}")
     return EvaluationResult(
         policy=handle.name, scenario=env.cfg.name, reading=env.cfg.reading, seed=seed,
         episodes={k: records[k].clone() for k in METRIC_KEYS}, rollout_steps=steps,

@@ -361,14 +361,36 @@ class FlockingEnv(EnvBase):
         return obstacles_of(self._static, self.world["moving_position"], self.cfg.moving_radius)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, mode: str = "rgb_array", env_index: int = 0, **kwargs: Any):
+    def render(self, mode: str = "rgb_array", env_index: int = 0, agent_index_focus: int | None = None,
+               **kwargs: Any):
         """An RGB frame ``[H, W, 3]`` (uint8) of world ``env_index``: obstacles, goal, UAVs,
-        headings, fields of view (``kwargs``: :func:`flock_torchrl.world.frame.render_frame`)."""
+        headings, fields of view (``size``, ``extent``, ``show_fov``, ``title``:
+        :func:`flock_torchrl.world.frame.render_frame`).
+
+        Takes the call TorchRL's multi-agent scripts make for VMAS,
+        ``render(mode="rgb_array", agent_index_focus=None, visualize_when_possible=True)``:
+        ``agent_index_focus`` centres a 20 m view on that UAV (``None``: the whole world);
+        VMAS's other display options (:data:`VMAS_RENDER_OPTIONS`) have no meaning here and are ignored."""
         if mode != "rgb_array":
             raise ValueError(f"render mode {mode!r} is not supported; use 'rgb_array'")
         from .frame import render_frame
 
-        return render_frame(self, env_index=env_index, **kwargs)
+        unknown = sorted(set(kwargs) - FRAME_OPTIONS - VMAS_RENDER_OPTIONS)
+        if unknown:
+            raise TypeError(f"render: unknown option(s) {unknown}; known: {sorted(FRAME_OPTIONS)} (and VMAS's "
+                            f"{sorted(VMAS_RENDER_OPTIONS)}, ignored)")
+        options = {k: v for k, v in kwargs.items() if k in FRAME_OPTIONS}
+        if agent_index_focus is not None and "extent" not in options:
+            x, y = self.world["position"][env_index, int(agent_index_focus)].tolist()
+            options["extent"] = (x - 10.0, x + 10.0, y - 10.0, y + 10.0)
+        return render_frame(self, env_index=env_index, **options)
+
+
+# render(): the frame's options, and VMAS's display options TorchRL's scripts pass (ignored).
+FRAME_OPTIONS = frozenset({"size", "extent", "show_fov", "title"})
+VMAS_RENDER_OPTIONS = frozenset({"visualize_when_possible", "plot_position_function", "plot_position_function_range",
+                                 "plot_position_function_cmap_range", "plot_position_function_cmap_alpha",
+                                 "plot_position_function_precision", "plot_position_function_cmap_name"})
 
 
 def _extras(extras: str | Iterable[str]) -> frozenset[str]:

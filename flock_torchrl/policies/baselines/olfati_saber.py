@@ -2,14 +2,14 @@
 
 R. Olfati-Saber, "Flocking for multi-agent dynamic systems: algorithms and theory",
 IEEE TAC 51(3), 2006. Each helper's docstring states the paper's formula (as collected in
-the project's BASELINES.md): sigma-norm and its gradient, the bump function, the action
+docs/baselines.md, "Policy-MA — Olfati-Saber Algorithm 3"): sigma-norm and its gradient, the bump function, the action
 functions phi, phi_alpha, phi_beta, the beta-agents of walls and circles, and the protocol of
 Algorithm 3, ``u = alpha terms + beta terms + gamma term``.
 
 Each UAV is a double integrator for the protocol: ``u_i`` is an acceleration. This world's
 UAVs take a velocity command through a first-order lag (Eq. 1 of Bai et al.,
 ``dv/dt = (v_cmd - v) / tau_v``), so the command ``v_cmd = v + tau_v u`` realises ``u`` exactly
-until it saturates; it is norm-capped at ``v_max`` (BASELINES.md, "Rescaling").
+until it saturates; it is norm-capped at ``v_max`` (docs/baselines.md, the parameter table of "Policy-MA").
 
 Sensing is limited as for the learned policies (section 7): alpha-neighbours are the UAVs the
 camera sees (:func:`~flock_torchrl.policies.baselines.sensing.neighbour_view`); beta-agents sit at the

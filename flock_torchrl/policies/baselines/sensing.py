@@ -88,7 +88,7 @@ class ObstacleView:
 
 def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch.Tensor,
                  n_obstacles: int) -> ObstacleView:
-    """Nearest laser hit per obstacle (BASELINES.md, "Obstacles come from the laser").
+    """Nearest laser hit per obstacle (docs/baselines.md, "What a baseline UAV senses").
 
     Beam ``k`` points at ``heading + k * 2 pi / K``. For each obstacle the shortest beam that hit
     it gives the hit point; the estimated surface normal points from that point back to the

@@ -2,15 +2,15 @@
 
 G. Vasarhelyi, Cs. Viragh, G. Somorjai, T. Nepusz, A. E. Eiben, T. Vicsek, "Optimized
 flocking of autonomous drones in confined environments", Science Robotics 3(20), 2018.
-Its terms (Materials and Methods; each docstring states the formula, as collected in the
-project's BASELINES.md): self-propulsion, linear short-range repulsion, the optimal braking
+Its terms (Materials and Methods; each docstring states the formula, as collected in
+docs/baselines.md, "Policy-OP — Vasarhelyi et al. 2018"): self-propulsion, linear short-range repulsion, the optimal braking
 curve D, velocity alignment as friction, shill agents at obstacles, and the desired velocity
 as their sum with a speed cap.
 
 The controller outputs a desired velocity, which is exactly this world's command (Eq. 1 of
 Bai et al. has the same first-order robot model as the paper's simulator). The original has
 no goal: its self-propulsion keeps the current direction. Here it points at the goal
-(BASELINES.md). Sensing is limited as for the learned policies (section 7): neighbours are the
+(docs/baselines.md, "Policy-OP"). Sensing is limited as for the learned policies (section 7): neighbours are the
 UAVs the camera sees, with their relative velocities; a shill agent sits at each obstacle's
 nearest laser hit and moves away from the surface along the normal hit -> UAV.
 """
