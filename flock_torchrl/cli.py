@@ -274,6 +274,9 @@ def _source_of(config: DictConfig, key: str) -> str | None:
     hydra = config.get("hydra") if isinstance(config, DictConfig) else None
     if not group or hydra is None:
         return None
+    for override in hydra.overrides.task:
+        if str(override).lstrip("+~").split("=")[0] == key:
+            return f"the command line's {override}"
     choice = hydra.runtime.choices.get(group)
     if not choice:
         return None

@@ -299,8 +299,10 @@ class ScenarioConfig(Schema):
     spawn_separation: float = MISSING
     spawn_clearance: float = MISSING
     spawn_max_tries: int = MISSING
-    circles: List[List[float]] = MISSING     # [cx, cy, radius]
-    rectangles: List[List[float]] = MISSING  # [cx, cy, width_x, height_y]
+    # Lists of numbers ([[40, 40, 6]] as well as [[40.0, 40.0, 6.0]]: OmegaConf's nested typed
+    # lists refuse an int, so check() verifies and converts them).
+    circles: List[Any] = MISSING             # [cx, cy, radius]
+    rectangles: List[Any] = MISSING          # [cx, cy, width_x, height_y]
     # --- moving circles (S5)
     n_moving: int = MISSING
     moving_radius: float = MISSING
@@ -362,12 +364,14 @@ class ScenarioConfig(Schema):
         choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
         if len(self.area_center) != 2 or not all(_is_number(v) for v in self.area_center):
             _fail(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
-        for i, c in enumerate(self.circles):
-            if len(c) != 3 or not all(_is_number(v) for v in c) or not c[2] > 0:
-                _fail(k("circles"), f"entry {i} must be [cx, cy, radius > 0], got {list(c)}")
-        for i, r in enumerate(self.rectangles):
-            if len(r) != 4 or not all(_is_number(v) for v in r) or not (r[2] > 0 and r[3] > 0):
-                _fail(k("rectangles"), f"entry {i} must be [cx, cy, width > 0, height > 0], got {list(r)}")
+        for name, size, shape in (("circles", 3, "[cx, cy, radius > 0]"),
+                                  ("rectangles", 4, "[cx, cy, width > 0, height > 0]")):
+            entries = getattr(self, name)
+            for i, entry in enumerate(entries):
+                ok = isinstance(entry, (list, tuple)) and len(entry) == size and all(_is_number(v) for v in entry)
+                if not ok or not all(v > 0 for v in entry[2:]):
+                    _fail(k(name), f"entry {i} must be {shape}, got {entry!r}")
+            setattr(self, name, [[float(v) for v in entry] for entry in entries])
         for i, a in enumerate(self.circles):
             for j, b in enumerate(self.circles[i + 1:], i + 1):
                 if math.hypot(a[0] - b[0], a[1] - b[1]) < a[2] + b[2]:

@@ -31,9 +31,13 @@ from ..config import ScenarioConfig
 from ..io import atomic_write
 from .models import ACTION, OBS, make_actor
 
-FORMAT = "flock_torchrl/checkpoint-v2"
+FORMAT_VERSION = 2
+FORMAT = f"flock_torchrl/checkpoint-v{FORMAT_VERSION}"
 KINDS = ("training", "policy")
 LAST = "last.pt"
+# What each kind must hold (a digest-valid file without them is refused, naming the keys).
+REQUIRED = {"training": ("meta", "config", "counters", "actor", "learner", "rng", "evaluations"),
+            "policy": ("meta", "actor")}
 
 
 class CheckpointError(RuntimeError):
@@ -67,16 +71,21 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     path = resolve_path(path)
     if not path.is_file():
         raise CheckpointError(f"no checkpoint at {path}")
+    if path.stat().st_size == 0:
+        raise CheckpointError(f"{path} is empty (0 bytes): not a checkpoint (a copy or a write that did not finish?)")
     try:
         envelope = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError, KeyError, AttributeError,
-            TypeError, IndexError, UnicodeDecodeError) as exc:
-        raise CheckpointError(f"{path} is not a readable checkpoint (corrupted, truncated or not a torch file): "
-                              f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
+    except pickle.UnpicklingError:
+        # torch's own message suggests weights_only=False: never do that with a file you did not write.
+        raise CheckpointError(f"{path} is not a {FORMAT} checkpoint: it holds Python objects a checkpoint "
+                              "never contains, so it was not opened (opening it could run code)") from None
+    except (RuntimeError, EOFError, ValueError, OSError, KeyError, AttributeError, TypeError, IndexError,
+            UnicodeDecodeError) as exc:
+        raise CheckpointError(f"{path} is not a readable checkpoint (corrupted, truncated or not a torch file; "
+                              f"{type(exc).__name__})") from None
     if not isinstance(envelope, dict) or envelope.get("format") != FORMAT:
         found = envelope.get("format") if isinstance(envelope, dict) else type(envelope).__name__
-        raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (found {found!r}); "
-                              "it is foreign or from an older version of flock_torchrl")
+        raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (found {found!r}); {_version_hint(found)}")
     payload_bytes = envelope.get("payload")
     if not isinstance(payload_bytes, torch.Tensor) or payload_bytes.dtype != torch.uint8:
         raise CheckpointError(f"{path}: malformed checkpoint (no payload)")
@@ -90,9 +99,26 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     try:
         payload = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as exc:  # digest matched: only a writer bug gets here
-        raise CheckpointError(f"{path}: payload unreadable: {exc}") from exc
+        raise CheckpointError(f"{path}: payload unreadable ({type(exc).__name__})") from None
+    missing = [k for k in REQUIRED.get(envelope.get("kind"), ()) if not isinstance(payload, dict) or k not in payload]
+    if missing:
+        raise CheckpointError(f"{path} is a {envelope.get('kind')} checkpoint without {', '.join(missing)}: it "
+                              "cannot be used (written by something else than flock_torchrl's trainer?)")
     payload["kind"] = envelope["kind"]
     return payload
+
+
+def _version_hint(found: object) -> str:
+    """Whether a checkpoint of another format is older or newer than this version reads."""
+    import re
+
+    match = re.fullmatch(r"flock_torchrl/checkpoint-v(\d+)", str(found))
+    if not match:
+        return "it is foreign (not a flock_torchrl checkpoint)"
+    version = int(match.group(1))
+    if version > FORMAT_VERSION:
+        return f"it was written by a newer flock_torchrl (format v{version}; this one reads v{FORMAT_VERSION}): upgrade"
+    return f"it was written by an older flock_torchrl (format v{version}; this one reads v{FORMAT_VERSION})"
 
 
 def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike) -> Path:

@@ -239,6 +239,20 @@ def _shutdown(collector: Any, timeout: float = SHUTDOWN_TIMEOUT) -> None:
                 proc.kill()
 
 
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker with the stop signals ignored: it blocks SIGINT
+    and SIGTERM itself, but a SIGHUP to the process group (a closed terminal, an ssh drop)
+    would kill it, and its replacement then prints tracebacks for every shared block."""
+    from multiprocessing import resource_tracker
+
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
 def _make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, parent: int) -> FlockingEnv:
     if os.getpid() != parent:
         _ignore_stop_signals()
@@ -326,6 +340,7 @@ class _Training:
     # ---------------------------------------------------------------- the pieces
     def _build(self, payload: dict | None) -> None:
         cfg, exp = self.cfg, self.cfg.experiment
+        _start_resource_tracker()  # before the replay buffer's shared counter or any worker needs it
         torch.manual_seed(cfg.seed)
         device = torch.device(cfg.device)
         per_worker = exp.num_envs // exp.workers
