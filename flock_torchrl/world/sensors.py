@@ -13,6 +13,23 @@ import torch
 
 from .geometry import Obstacles, cast_rays_along, circular_mean, pairwise, relative_angle, wrap
 
+# Numbers per piece of the observation and the critic state (section 2).
+GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
+SCAN_SLOT = 2     # per beam of o_scan: [d / d_max^scan, alpha / pi]
+CAMERA_SLOT = 3   # per slot of o_cam and s_cam: [min(d / d_v, 1), alpha / pi, wrap(phi_i - phi_j) / pi]
+CENTRE_SIZE = 3   # s_c: [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]
+
+
+def observation_size(cfg) -> int:
+    """Length of the actor's observation ``[o_g, o_scan, o_cam]`` for a scenario ``cfg`` (its
+    ``n_scan`` beams and ``n_cam`` camera slots): 17 in the paper."""
+    return GOAL_SIZE + SCAN_SLOT * cfg.n_scan + CAMERA_SLOT * cfg.n_cam
+
+
+def state_size(cfg) -> int:
+    """Length of the critic's state ``[o_g, o_scan, s_cam, s_c]`` for a scenario ``cfg``: 20 in the paper."""
+    return observation_size(cfg) + CENTRE_SIZE
+
 
 def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor:
     """Beam headings relative to the UAV's heading, ``k * 2 pi / n_beams``, ``[n_beams]``."""
@@ -181,7 +198,7 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
     missing = slots.new_tensor([1.0, 0.0, 0.0])
     slots = torch.where(present[..., None], slots, missing)
     if slots.shape[-2] < n:  # fewer other UAVs than slots
-        pad = missing.expand(*slots.shape[:-2], n - slots.shape[-2], 3)
+        pad = missing.expand(*slots.shape[:-2], n - slots.shape[-2], CAMERA_SLOT)
         slots = torch.cat((slots, pad), -2)
     return slots.flatten(-2)
 
@@ -255,6 +272,7 @@ def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
 
 
 __all__ = [
+    "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "observation_size", "state_size",
     "Neighbours", "add_sensor_noise", "beam_offsets", "beam_return_offset", "camera_observation",
     "beam_directions", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "shortest_beams", "smallest",

@@ -7,10 +7,9 @@ the pairwise UAV quantities once. :func:`advance` applies a batch of actions: th
 (Eq. 21-25), termination and the episode metrics (Eq. 31-36). Neither touches a Python
 object per world or per UAV; the env (:mod:`.env`) owns the state and calls them.
 
-The state is a flat mapping of tensors with leading batch dimension ``B``:
-``position [B, N, 2]``, ``velocity [B, N, 2]``, ``heading [B, N]``, ``goal [B, 2]``,
-``moving_position [B, K, 2]``, ``moving_velocity [B, K, 2]``, ``prev_action [B, N, 2]``,
-``has_prev_action [B]``; the metrics accumulator is a separate mapping (:mod:`.metrics`).
+The state is a flat mapping of tensors with leading batch dimension ``B``, the keys, shapes
+and dtypes of :data:`~.state.WORLD_STATE`; the metrics accumulator is a separate mapping
+(:mod:`.metrics`).
 """
 
 from __future__ import annotations
@@ -28,6 +27,7 @@ from .metrics import closest_pair, step_statistics, update_episode
 from .reward import total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
+from .state import world_state
 
 Tensors = Mapping[str, torch.Tensor]
 
@@ -118,9 +118,9 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
             ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]:
     """One step of every world under ``action [B, N, 2]`` (already checked and clipped).
 
-    Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` also holds
-    the executed ``command``, the ``instinct`` flags and ``terminated`` / ``truncated``
-    ``[B, 1]``. Nothing is modified in place. ``normals``: the S4 noise of the new state
+    Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` holds the
+    keys of :data:`~.state.WORLD_STATE`, among them the executed ``command``, the ``instinct``
+    flags and ``terminated`` / ``truncated`` ``[B, 1]``. Nothing is modified in place. ``normals``: the S4 noise of the new state
     (:func:`sense`). No host synchronisation, no data-dependent shapes: it compiles whole
     (``torch.compile(advance, fullgraph=True)``).
     """
@@ -140,13 +140,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     if cfg.n_moving:
         moving_position, moving_velocity = reflect_in_box(
             moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
-    new = {
-        "position": position, "velocity": velocity, "heading": heading, "goal": state["goal"],
-        "moving_position": moving_position, "moving_velocity": moving_velocity,
-        "command": command, "instinct": use, "prev_action": action,
-        "has_prev_action": torch.ones_like(state["has_prev_action"]),
-    }
-    now = sense(new, static, cfg, normals)
+    physical = {"position": position, "heading": heading, "goal": state["goal"], "moving_position": moving_position}
+    now = sense(physical, static, cfg, normals)
     prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
     d_collision = now["d_scan1"]
     if cfg.collision_reward_source == "min_uav_scan":
@@ -165,6 +160,9 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     if cfg.uav_collision_terminates:
         terminated = terminated | (stats["uav"] < cfg.collision_distance)
     episode = update_episode(dict(episode), stats, reached, crashed, cfg.dt, reward.mean(-1))
-    new["terminated"] = terminated[:, None]
-    new["truncated"] = (episode["steps"] >= cfg.max_steps)[:, None] & ~new["terminated"]
+    new = world_state(
+        position=position, velocity=velocity, heading=heading, goal=state["goal"], moving_position=moving_position,
+        moving_velocity=moving_velocity, command=command, instinct=use, prev_action=action,
+        has_prev_action=torch.ones_like(state["has_prev_action"]), terminated=terminated[:, None],
+        truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, now, episode, reward
