@@ -39,11 +39,17 @@ def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor
     return offsets.to(dtype)
 
 
+def beam_unit_table(n_beams: int) -> tuple[list[float], list[float]]:
+    """``cos`` and ``sin`` of every beam offset ``k * 2 pi / n_beams`` as Python floats (double
+    precision; rounded to the tensor's dtype where used): constants, also under ``torch.compile``."""
+    step = 2 * math.pi / n_beams
+    return [math.cos(k * step) for k in range(n_beams)], [math.sin(k * step) for k in range(n_beams)]
+
+
 def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     """Unit vectors of every beam, ``[..., n_beams, 2]`` for headings ``[...]``: the heading's
     direction rotated by each beam's fixed offset (no trigonometry per beam)."""
-    offsets = beam_offsets(n_beams, heading.device, torch.float64)
-    cos_o, sin_o = torch.cos(offsets).to(heading.dtype), torch.sin(offsets).to(heading.dtype)
+    cos_o, sin_o = (torch.tensor(v, dtype=heading.dtype, device=heading.device) for v in beam_unit_table(n_beams))
     cos_h, sin_h = torch.cos(heading)[..., None], torch.sin(heading)[..., None]
     return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), -1)
 
@@ -274,7 +280,7 @@ def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
 __all__ = [
     "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "observation_size", "state_size",
     "Neighbours", "add_sensor_noise", "beam_offsets", "beam_return_offset", "camera_observation",
-    "beam_directions", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
+    "beam_directions", "beam_unit_table", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "shortest_beams", "smallest",
     "swarm_centre_state", "visibility",
 ]

@@ -20,6 +20,7 @@ from typing import Mapping
 import torch
 
 from ..config import ScenarioConfig
+from . import lanes
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
 from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
 from .instinct import instinct_command
@@ -66,7 +67,12 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         from the sensed readings), ``d_scan1``, ``d_uav1`` (true), ``d_goal``, ``alpha_goal``,
         ``obstacle_distance`` (true distance to the nearest surface), all ``[B, N]``; and the
         ``closest_pair`` of UAVs ``[B]`` (true), for the metrics.
+
+    Under ``torch.compile`` the same quantities come from :func:`.lanes.sense`, which lays the
+    worlds innermost (the layout inductor's vectorised loops want); this eager code is its twin.
     """
+    if torch.compiler.is_compiling():
+        return lanes.sense(state, static, cfg, normals)
     position, heading, goal = state["position"], state["heading"], state["goal"]
     obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
     beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range)
