@@ -18,11 +18,12 @@ import time
 import torch
 
 from flock_torchrl import FlockingEnv
+from flock_torchrl.world.state import STATE_KEYS
 
 
 def stepper(env: FlockingEnv, steps: int, api: str = "step"):
     """A callable taking ``steps`` steps from one fixed state: ``api`` ``step`` (TorchRL's
-    ``env.step``), ``_step`` (the env's own step) or ``advance`` (the pure step function)."""
+    ``env.step``), ``_step`` (the env's own step) or ``advance`` (the pure step function, with the episode summary)."""
     td = env.reset()
     gen = torch.Generator().manual_seed(0)
     td.set(("agents", "action"), torch.rand(env.num_envs, env.n_agents, 2, generator=gen) * 2 - 1)
@@ -36,9 +37,8 @@ def stepper(env: FlockingEnv, steps: int, api: str = "step"):
             elif api == "_step":
                 env._step(td)
             else:
-                state = {k: world[k] for k in ("position", "velocity", "heading", "goal", "moving_position",
-                                                "moving_velocity", "prev_action", "has_prev_action")}
-                env._advance(state, world["sensed"].to_dict(), world["episode"].to_dict(), td["agents", "action"],
+                state = {k: world[k] for k in STATE_KEYS}
+                env._transition(state, world["sensed"].to_dict(), world["episode"].to_dict(), td["agents", "action"],
                              env._static, env.cfg, None)
     return go
 

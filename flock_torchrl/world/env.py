@@ -14,11 +14,11 @@ from torchrl.envs import EnvBase
 
 from ..config import ScenarioConfig, check_scenario, scenario_config
 from .geometry import Obstacles
-from .metrics import FLAG_METRICS, METRIC_KEYS, episode_summary, new_accumulator
+from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
 from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout
 from .state import STATE_KEYS, check_state, empty_state
-from .step import advance, noise_draws, sense
+from .step import noise_draws, sense, transition
 
 ACTION = ("agents", "action")
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
@@ -107,7 +107,9 @@ class FlockingEnv(EnvBase):
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
         self.check_actions = bool(check_actions)
-        self._advance = torch.compile(advance, dynamic=False, fullgraph=True) if self.compile_step else advance
+        self._transition = (torch.compile(transition, dynamic=False, fullgraph=True) if self.compile_step
+                            else transition)
+        self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
         self.world = self._empty_world()
         self._sensed_once = False
@@ -190,10 +192,18 @@ class FlockingEnv(EnvBase):
         return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
                           batch_size=[count], device=dev)
 
-    def _output(self) -> TensorDict:
+    def _output(self, summary: Mapping[str, torch.Tensor] | None = None, reward: torch.Tensor | None = None
+                ) -> TensorDict:
+        """What ``reset`` / ``step`` return for the current world; ``summary``: the episode
+        summary if the step computed it already, ``reward [B, N]`` after a step.
+
+        Built with ``TensorDict._new_unsafe``: every entry comes from the world, whose shapes
+        and device are the env's by construction, so the per-entry checks would only cost time."""
         world, extras = self.world, self.extras
         sensed = world["sensed"]
         agents = {"observation": sensed["observation"], "state": sensed["state"]}
+        if reward is not None:
+            agents["reward"] = reward[..., None]
         if "physics" in extras:
             agents.update(position=world["position"], velocity=world["velocity"], heading=world["heading"])
         if "command" in extras:
@@ -201,17 +211,18 @@ class FlockingEnv(EnvBase):
         if "laser" in extras:
             agents.update(scan=sensed["scan"], scan_obstacle=sensed["scan_obstacle"])
         terminated, truncated = world["terminated"], world["truncated"]
+        if summary is None:
+            summary = summary_values(world["episode"], self.cfg.collision_distance)
         out = {
-            "agents": TensorDict(agents, batch_size=(self.num_envs, self.n_agents), device=self.device),
-            "episode": episode_summary(world["episode"], self.cfg.collision_distance),
+            "agents": TensorDict._new_unsafe(agents, batch_size=self._agent_batch, device=self.device),
+            "episode": summary,
             "terminated": terminated, "truncated": truncated, "done": terminated | truncated,
         }
         if "physics" in extras:
             out["goal"] = world["goal"]
             if self.cfg.n_moving:
-                out["obstacles"] = TensorDict({"position": world["moving_position"]}, batch_size=self.batch_size,
-                                              device=self.device)
-        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+                out["obstacles"] = {"position": world["moving_position"]}
+        return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
 
     # ------------------------------------------------------------------ TorchRL API
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDict:
@@ -255,12 +266,12 @@ class FlockingEnv(EnvBase):
         world = self.world
         state = {k: world[k] for k in STATE_KEYS}
         normals = noise_draws(self.cfg, self.num_envs, self._generator, self.device)
-        state, sensed, episode, reward = self._advance(state, world["sensed"].to_dict(), world["episode"].to_dict(),
-                                                       action, self._static, self.cfg, normals)
-        self.world = TensorDict({**state, "sensed": sensed, "episode": episode}, batch_size=self.batch_size,
-                                device=self.device)
-        out = self._output()
-        out.set(("agents", "reward"), reward[..., None])
+        state, sensed, episode, reward, summary = self._transition(
+            state, world["sensed"].to_dict(), world["episode"].to_dict(), action, self._static, self.cfg, normals)
+        # The step's outputs have the world's shapes by construction: no per-entry checks.
+        self.world = TensorDict._new_unsafe({**state, "sensed": sensed, "episode": episode},
+                                            batch_size=self.batch_size, device=self.device)
+        out = self._output(summary, reward)
         self.busy_seconds += time.perf_counter() - start
         return out
 
@@ -285,15 +296,16 @@ class FlockingEnv(EnvBase):
         limit = 1.0 if self.cfg.action_mode == "policy" else self.cfg.v_max
         if not self.check_actions:
             return action.clamp(-limit, limit)
-        if not bool(torch.isfinite(action).all()):
-            raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
+        finite = torch.isfinite(action).all()
         done = (self.world["terminated"] | self.world["truncated"]).reshape(-1)
-        if bool(done.any()):
-            worlds = done.nonzero().reshape(-1).tolist()
-            shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
-            raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
-                             "env.step_and_maybe_reset, rollout and collectors do this)")
-        return action.clamp(-limit, limit)
+        if bool(finite & ~done.any()):  # one host synchronisation for both checks
+            return action.clamp(-limit, limit)
+        if not bool(finite):
+            raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
+        worlds = done.nonzero().reshape(-1).tolist()
+        shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
+        raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
+                         "env.step_and_maybe_reset, rollout and collectors do this)")
 
     def _set_seed(self, seed: int | None) -> None:
         if seed is None:

@@ -24,7 +24,7 @@ from . import lanes
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
 from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
 from .instinct import instinct_command
-from .metrics import closest_pair, step_statistics, update_episode
+from .metrics import closest_pair, step_statistics, summary_values, update_episode
 from .reward import total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
@@ -172,3 +172,13 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         has_prev_action=torch.ones_like(state["has_prev_action"]), terminated=terminated[:, None],
         truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, now, episode, reward
+
+
+def transition(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
+               cfg: ScenarioConfig, normals: Tensors | None = None
+               ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor,
+                          dict[str, torch.Tensor]]:
+    """:func:`advance`, plus the episode summary the env returns with it
+    (:func:`~.metrics.summary_values`): the function the env runs (and compiles) per step."""
+    state, sensed, episode, reward = advance(state, sensed, episode, action, static, cfg, normals)
+    return state, sensed, episode, reward, summary_values(episode, cfg.collision_distance)
