@@ -25,7 +25,7 @@ import torch
 from ..config import ScenarioConfig
 from .geometry import Obstacles, circular_mean, wrap
 from .instinct import repulsion_xy
-from .sensors import CAMERA_SLOT, beam_offsets, beam_unit_table
+from .sensors import CAMERA_SLOT, beam_unit_table
 
 Tensors = Mapping[str, torch.Tensor]
 
@@ -49,7 +49,8 @@ def _batch_first(x: torch.Tensor) -> torch.Tensor:
 
 def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`~.sensors.smallest` along the first dimension: the ``k`` smallest entries,
-    ascending, ties by the lowest index; ``(value [k, ...], index [k, ...])``.
+    ascending, ties by the lowest index; ``(value [k, ...], index [k, ...])``, the index in
+    the values' dtype (:func:`pick` reads other tensors there without a gather).
 
     Each pass takes the minimum and the first index holding it (a minimum over indices where
     the value equals it), then masks that index with ``inf``: two plain reductions over the
@@ -66,7 +67,22 @@ def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         picks.append(low)
         indices.append(at)
         values = torch.where(index == at, math.inf, values)
-    return torch.stack(picks), torch.stack(indices).long()
+    return torch.stack(picks), torch.stack(indices)
+
+
+def pick(values: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
+    """``values[at]`` along the first dimension for float indices ``at`` (from :func:`smallest`):
+    a masked sum over that dimension, vectorised like the selection itself (a gather would
+    convert, bounds-check and load every index one by one)."""
+    index = torch.arange(values.shape[0], device=values.device, dtype=at.dtype).view(-1, *([1] * at.dim()))
+    return torch.where(index == at, values, 0.0).sum(0)
+
+
+def beam_angle(at: torch.Tensor, n_beams: int) -> torch.Tensor:
+    """The offset ``k * 2 pi / n_beams`` of beams ``at`` (float indices), wrapped to ``[-pi, pi)``:
+    wrapped in index space (``k - n_beams`` from the half turn on), so the beam at exactly pi
+    goes to -pi whatever the float rounding of its angle."""
+    return torch.where(at < n_beams / 2, at, at - n_beams) * (2 * math.pi / n_beams)
 
 
 def _running_min(t: torch.Tensor, m: int, best: torch.Tensor | None, index: torch.Tensor | None):
@@ -142,8 +158,7 @@ def scan_observation(shortest: tuple[torch.Tensor, torch.Tensor], n: int, n_beam
                      ) -> torch.Tensor:
     """``o_scan`` (:func:`~.sensors.scan_observation`) from the shortest beams ``[>= n, N, B]``: ``[N, B, 2 n]``."""
     dist, idx = shortest[0][:n], shortest[1][:n]
-    alpha = wrap(beam_offsets(n_beams, dist.device, dist.dtype))[idx]
-    slots = torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1)  # [n, N, B, 2]
+    slots = torch.stack((dist.clamp(0.0, max_range) / max_range, beam_angle(idx, n_beams) / math.pi), -1)
     return slots.permute(1, 2, 0, 3).flatten(-2)
 
 
@@ -154,12 +169,12 @@ def camera_observation(distance: torch.Tensor, bearing: torch.Tensor, heading_di
     ``([N, B, 3 n], distance to the nearest visible UAV [N, B] or None when n = 0)``."""
     key = torch.where(visible, distance, math.inf)
     m = min(n, key.shape[0])
-    first, order = smallest(key, m)  # [m, N, B]
+    first, order = smallest(key, m)  # [m, N, B]; where present, first is the distance at order
     present = torch.isfinite(first)
     slots = torch.stack(
-        ((torch.gather(distance, 0, order) / camera_range).clamp(0.0, 1.0),
-         torch.gather(bearing, 0, order) / math.pi,
-         torch.gather(heading_difference, 0, order) / math.pi), -1)  # [m, N, B, 3]
+        ((first / camera_range).clamp(0.0, 1.0),
+         torch.stack([pick(bearing, at) for at in order]) / math.pi,
+         torch.stack([pick(heading_difference, at) for at in order]) / math.pi), -1)  # [m, N, B, 3]
     missing = slots.new_tensor([1.0, 0.0, 0.0])
     slots = torch.where(present[..., None], slots, missing)
     if m < n:  # fewer other UAVs than slots
@@ -229,7 +244,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig, normals: Tenso
     if nearest_seen is None:
         nearest_seen = torch.where(visible, s_distance, math.inf).amin(0)
     d_scan1 = sensed_shortest[0][0]
-    angle = h + beam_offsets(n_beams, h.device, h.dtype)[sensed_shortest[1][0]]
+    angle = h + sensed_shortest[1][0] * (2 * math.pi / n_beams)
     to_goal = torch.stack((tx, ty), -1)  # [N, B, 2]
     ux, uy = repulsion_xy(s_dx, s_dy, s_distance, visible, to_goal, cfg.rep_gain, cfg.rep_range, cfg.tangential,
                           dim=0)
