@@ -24,9 +24,9 @@ from . import lanes
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
 from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
 from .instinct import instinct_command
-from .metrics import closest_pair, step_statistics, summary_values, update_episode
+from .metrics import step_statistics, summary_values, update_episode
 from .reward import total_reward
-from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
+from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, near_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
 from .state import world_state
 
@@ -76,17 +76,20 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     position, heading, goal = state["position"], state["heading"], state["goal"]
     obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
     beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range)
-    true_neighbours = observe_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
+    # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
+    true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
     # The critic's camera sees all round: the same measurements, wider visibility.
     all_round = true_neighbours.with_visibility(
-        visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi))
+        visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi, pairs.valid))
     sensed_beams, neighbours = beams, true_neighbours
     if cfg.noise:
         if normals is None:
             raise ValueError("sense: the scenario has sensor noise; pass its normals (sensors.sensor_normals)")
+        packed = {"scan": normals["scan"],
+                  **{k: pairs.take(normals[k]) for k in ("distance", "bearing", "heading_difference")}}
         sensed_beams, neighbours = add_sensor_noise(
             beams, true_neighbours, scan_std=cfg.noise_scan, distance_std=cfg.noise_distance,
-            angle_std=cfg.noise_angle, max_range=cfg.laser_range, normals=normals)
+            angle_std=cfg.noise_angle, max_range=cfg.laser_range, normals=packed)
     # The shortest beams, selected once: the observation, the instinct and (without noise) the
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
@@ -115,7 +118,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
         "alpha_goal": relative_angle(to_goal, heading),
         "obstacle_distance": nearest_obstacle_distance(position, obstacles),
-        "closest_pair": closest_pair(true_neighbours.distance),
+        "closest_pair": closest,
     }
 
 
