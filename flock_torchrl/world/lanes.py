@@ -10,9 +10,10 @@ every tensor puts the worlds last: per UAV ``[N, B]``, per beam ``[K, N, B]``, p
 the batch, and every reduction (the shortest beams, the nearest neighbours, the repulsion
 sums, the nearest obstacle) runs over the outermost dimension, a vector of worlds at a time.
 
-:func:`sense` returns what :func:`~.step.sense` returns, in its layout, by the same formulas;
-:func:`~.step.sense` hands over to it under ``torch.compile``. It runs eagerly too, which is
-how the tests compare the two, key by key, in every scenario.
+:func:`sense` and :func:`advance` return what :func:`~.step.sense` and :func:`~.step.advance`
+return, in their layout, by the same formulas; those hand over to them under
+``torch.compile``. They run eagerly too, which is how the tests compare the two, key by key,
+in every scenario.
 """
 
 from __future__ import annotations
@@ -23,9 +24,13 @@ from typing import Mapping
 import torch
 
 from ..config import ScenarioConfig
+from .dynamics import reflect_in_box
 from .geometry import Obstacles, circular_mean, wrap
 from .instinct import repulsion_xy
+from .metrics import update_episode
+from .reward import collision_reward, flocking_reward, goal_reward
 from .sensors import CAMERA_SLOT, beam_unit_table
+from .state import world_state
 
 Tensors = Mapping[str, torch.Tensor]
 
@@ -182,15 +187,10 @@ def camera_observation(distance: torch.Tensor, bearing: torch.Tensor, heading_di
     return slots.permute(1, 2, 0, 3).flatten(-2), (first[0] if m else None)
 
 
-def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig, normals: Tensors | None = None
-          ) -> dict[str, torch.Tensor]:
-    """:func:`~.step.sense`, computed with the worlds innermost; same keys, shapes and layout."""
-    from .step import obstacles_of  # step imports this module
-
-    position, heading, goal = state["position"], state["heading"], state["goal"]
-    obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
-    px, py = _stored(_worlds_last(position).contiguous())  # [N, B] each
-    h = _stored(heading.transpose(0, 1).contiguous())      # [N, B]
+def _sense(px: torch.Tensor, py: torch.Tensor, h: torch.Tensor, goal: torch.Tensor, obstacles: Obstacles,
+           cfg: ScenarioConfig, normals: Tensors | None) -> dict[str, torch.Tensor]:
+    """:func:`~.step.sense` from positions and headings ``[N, B]``: every quantity worlds
+    innermost (``[N, B, ...]`` per UAV, ``[K, N, B]`` beams), ``closest_pair`` ``[B]``."""
     gx, gy = goal[:, 0], goal[:, 1]        # [B]
     n_uavs, n_beams = h.shape[0], cfg.n_beams
 
@@ -252,24 +252,114 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig, normals: Tenso
                           torch.ones_like(visible[:1]), to_goal, cfg.rep_gain, cfg.rep_range, cfg.tangential, dim=0)
     triggered = torch.minimum(nearest_seen, d_scan1) <= cfg.safe_distance
 
-    d_uav1 = nearest_seen if not cfg.noise else torch.where(visible, distance, math.inf).amin(0)
-    closest = torch.where(others, distance, math.inf).amin(0).amin(0)  # [B]
     return {
-        "observation": _batch_first(observation),
-        "state": _batch_first(critic_state),
-        # Views of the beam-major tensors (strides [1, B, N B]): a contiguous copy would cost a
-        # transpose of every beam, for keys only the "laser" extras show.
-        "scan": sensed_beams.permute(2, 1, 0),
-        "scan_obstacle": beam_obstacle.permute(2, 1, 0),
-        "instinct_triggered": _batch_first(triggered),
-        "instinct_command": _batch_first(torch.stack((ux + wx, uy + wy), -1)),
-        "d_scan1": _batch_first(true_shortest[0][0]),
-        "d_uav1": _batch_first(d_uav1),
-        "d_goal": _batch_first(d_goal),
-        "alpha_goal": _batch_first(alpha_goal),
-        "obstacle_distance": _batch_first(nearest_obstacle_distance(px, py, obstacles)),
-        "closest_pair": closest,
+        "observation": observation, "state": critic_state, "scan": sensed_beams, "scan_obstacle": beam_obstacle,
+        "instinct_triggered": triggered, "instinct_command": torch.stack((ux + wx, uy + wy), -1),
+        "d_scan1": true_shortest[0][0],
+        "d_uav1": nearest_seen if not cfg.noise else torch.where(visible, distance, math.inf).amin(0),
+        "d_goal": d_goal, "alpha_goal": alpha_goal,
+        "obstacle_distance": nearest_obstacle_distance(px, py, obstacles),
+        "closest_pair": torch.where(others, distance, math.inf).amin(0).amin(0),  # [B]
     }
 
 
-__all__ = ["camera_observation", "laser_scan", "nearest_obstacle_distance", "scan_observation", "sense", "smallest"]
+def _sensed_batch_first(sensed: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """:func:`_sense`'s quantities in :func:`~.step.sense`'s layout."""
+    out = {key: _batch_first(value) for key, value in sensed.items() if key not in ("scan", "scan_obstacle",
+                                                                                   "closest_pair")}
+    # Views of the beam-major tensors (strides [1, B, N B]): a contiguous copy would cost a
+    # transpose of every beam, for keys only the "laser" extras show.
+    out["scan"] = sensed["scan"].permute(2, 1, 0)
+    out["scan_obstacle"] = sensed["scan_obstacle"].permute(2, 1, 0)
+    out["closest_pair"] = sensed["closest_pair"]
+    return {key: out[key] for key in sensed}
+
+
+def _planar(x: torch.Tensor) -> torch.Tensor:
+    """``[B, N, ...]`` stored worlds innermost, ``[..., N, B]`` (contiguous, computed once)."""
+    return _stored(_worlds_last(x).contiguous())
+
+
+def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig, normals: Tensors | None = None
+          ) -> dict[str, torch.Tensor]:
+    """:func:`~.step.sense`, computed with the worlds innermost; same keys, shapes and layout."""
+    from .step import obstacles_of  # step imports this module
+
+    obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
+    px, py = _planar(state["position"])
+    return _sensed_batch_first(_sense(px, py, _planar(state["heading"]), state["goal"], obstacles, cfg, normals))
+
+
+def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
+            cfg: ScenarioConfig, normals: Tensors | None = None
+            ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]:
+    """:func:`~.step.advance`, computed with the worlds innermost; same results and layout.
+
+    The kinematics, reward and metrics run per axis on ``[N, B]`` tensors: atan2, sin and cos
+    then vectorise along the batch (on interleaved ``[B, N, 2]`` tensors inductor falls back
+    to scalar loops), and the sums and means over the swarm reduce the outer dimension.
+    """
+    from .step import obstacles_of
+
+    h = _planar(state["heading"])
+    px, py = _planar(state["position"])
+    vx, vy = _planar(state["velocity"])
+    ax, ay = _planar(action)
+    if cfg.action_mode == "policy":  # Eq. 19-20
+        direction, speed = h + ax * (math.pi / 2), ay + 2.0
+        cx, cy = speed * torch.cos(direction), speed * torch.sin(direction)
+    else:  # the action is the velocity command (rule-based controllers)
+        cx, cy = ax, ay
+    use = sensed["instinct_triggered"].transpose(0, 1)
+    if cfg.instinct:
+        rx, ry = _planar(sensed["instinct_command"])
+        cx, cy = torch.where(use, rx, cx), torch.where(use, ry, cy)
+    else:
+        use = torch.zeros_like(use)
+    cx, cy = cx.clamp(-cfg.v_max, cfg.v_max), cy.clamp(-cfg.v_max, cfg.v_max)
+    rate = cfg.dt / cfg.tau_v  # Eq. 1, semi-implicit Euler
+    vx, vy = vx + rate * (cx - vx), vy + rate * (cy - vy)
+    px, py = px + cfg.dt * vx, py + cfg.dt * vy
+    speed = torch.sqrt(vx * vx + vy * vy)
+    h = torch.where(speed > cfg.heading_speed_threshold, torch.atan2(vy, vx), h)
+    moving_position, moving_velocity = state["moving_position"], state["moving_velocity"]
+    if cfg.n_moving:
+        moving_position, moving_velocity = reflect_in_box(
+            moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
+    now = _sense(px, py, h, state["goal"], obstacles_of(static, moving_position, cfg.moving_radius), cfg, normals)
+
+    has_prev = state["has_prev_action"]
+    prev_x, prev_y = (torch.where(has_prev, p, a) for p, a in zip(_planar(state["prev_action"]), (ax, ay)))
+    d_collision = now["d_scan1"]
+    if cfg.collision_reward_source == "min_uav_scan":
+        d_collision = torch.minimum(now["d_uav1"], d_collision)
+    ox, oy = px - px.mean(0), py - py.mean(0)
+    d_centre = torch.sqrt(ox * ox + oy * oy)
+    deviation = wrap(h - circular_mean(h, 0, keepdim=True))
+    reward = (goal_reward(now["d_goal"], sensed["d_goal"].transpose(0, 1), now["alpha_goal"], cfg.goal_radius)
+              + collision_reward(d_collision) + flocking_reward(deviation, d_centre)
+              - 0.02 * ((prev_x - ax).abs() + (prev_y - ay).abs()))  # r_v, Eq. 25
+    reached = (now["d_goal"] < cfg.goal_radius).any(0)
+    crashed = (now["obstacle_distance"] < cfg.collision_distance).any(0)
+    swarm_x, swarm_y = vx.mean(0), vy.mean(0)
+    v_c = torch.sqrt(swarm_x * swarm_x + swarm_y * swarm_y)
+    stats = {  # metrics.step_statistics
+        "obs": now["obstacle_distance"].amin(0).clamp_min(0.0), "uav": now["closest_pair"],
+        "d_c": d_centre.mean(0), "v_error": (speed - v_c).abs().mean(0), "phi_error": deviation.abs().mean(0),
+        "speed": v_c,
+    }
+    terminated = reached | crashed
+    if cfg.uav_collision_terminates:
+        terminated = terminated | (stats["uav"] < cfg.collision_distance)
+    episode = update_episode(dict(episode), stats, reached, crashed, cfg.dt, reward.mean(0))
+    new = world_state(
+        position=_batch_first(torch.stack((px, py), -1)), velocity=_batch_first(torch.stack((vx, vy), -1)),
+        heading=_batch_first(h), goal=state["goal"], moving_position=moving_position, moving_velocity=moving_velocity,
+        command=_batch_first(torch.stack((cx, cy), -1)), instinct=_batch_first(use), prev_action=action,
+        has_prev_action=torch.ones_like(has_prev), terminated=terminated[:, None],
+        truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
+    return new, _sensed_batch_first(now), episode, _batch_first(reward)
+
+
+__all__ = ["advance", "beam_angle", "camera_observation", "laser_scan", "nearest_obstacle_distance", "pick",
+           "scan_observation", "sense", "smallest"]

@@ -131,8 +131,11 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     keys of :data:`~.state.WORLD_STATE`, among them the executed ``command``, the ``instinct``
     flags and ``terminated`` / ``truncated`` ``[B, 1]``. Nothing is modified in place. ``normals``: the S4 noise of the new state
     (:func:`sense`). No host synchronisation, no data-dependent shapes: it compiles whole
-    (``torch.compile(advance, fullgraph=True)``).
+    (``torch.compile(advance, fullgraph=True)``): compiled, it runs as :func:`.lanes.advance`
+    (the worlds innermost), whose eager twin this is.
     """
+    if torch.compiler.is_compiling():
+        return lanes.advance(state, sensed, episode, action, static, cfg, normals)
     if cfg.action_mode == "policy":
         command = action_to_command(action, state["heading"])
     else:  # the action is the velocity command (rule-based controllers)
