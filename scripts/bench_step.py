@@ -5,7 +5,7 @@ takes fixed random actions; candidates alternate round by round in one process a
 its best round, so load from other processes hits all of them alike (read the ratios).
 
     python scripts/bench_step.py                       # B = 1, 64, 1024, 4096; N = 5 .. 100
-    python scripts/bench_step.py --batches 1 1024 --sizes --rounds 7
+    python scripts/bench_step.py --batches 1 1024 --sizes --rounds 7 --vmas
     python scripts/bench_step.py --profile 1024        # torch.profiler table of one compiled step
 """
 
@@ -43,6 +43,25 @@ def stepper(env: FlockingEnv, steps: int, api: str = "step"):
     return go
 
 
+def vmas_stepper(num_envs: int, steps: int):
+    """TorchRL's ``VmasEnv("flocking", n_agents=5)`` taking ``steps`` steps with fixed random
+    actions (VMAS keeps stepping finished worlds), or ``None`` without vmas."""
+    try:
+        from torchrl.envs import VmasEnv
+    except ImportError:
+        return None
+    try:
+        env = VmasEnv("flocking", num_envs=num_envs, n_agents=5, continuous_actions=True, device="cpu", seed=0)
+    except Exception:  # vmas is the optional `bench` extra
+        return None
+    td = env.rand_action(env.reset())
+
+    def go() -> None:
+        for _ in range(steps):
+            env.step(td)
+    return go
+
+
 def paired(candidates: dict, rounds: int) -> dict[str, float]:
     """Best seconds of one call of each candidate over ``rounds`` alternated rounds (after a warm-up)."""
     for fn in candidates.values():
@@ -57,16 +76,23 @@ def paired(candidates: dict, rounds: int) -> dict[str, float]:
     return best
 
 
-def batch_table(batches, rounds: int, scenario: str, policy: str, api: str) -> None:
+def batch_table(batches, rounds: int, scenario: str, policy: str, api: str, vmas: bool) -> None:
     print(f"ms per env step ({api}), {scenario}/{policy}, N=5; best of {rounds} alternated rounds")
-    print(f"{'B':>6} {'eager':>9} {'compiled':>9} {'ratio':>7}")
+    print(f"{'B':>6} {'eager':>9} {'compiled':>9} {'ratio':>7}" + (f" {'vmas':>9} {'vs vmas':>8}" if vmas else ""))
     for b in batches:
         steps = max(3, 2048 // b) if b < 1024 else 3
         envs = {name: FlockingEnv(scenario, b, "cpu", 0, policy_id=policy, compile_step=(name == "compiled"))
                 for name in ("eager", "compiled")}
-        best = paired({name: stepper(env, steps, api) for name, env in envs.items()}, rounds)
+        candidates = {name: stepper(env, steps, api) for name, env in envs.items()}
+        if vmas and (go := vmas_stepper(b, steps)) is not None:
+            candidates["vmas"] = go
+        best = paired(candidates, rounds)
         e, c = (1e3 * best[k] / steps for k in ("eager", "compiled"))
-        print(f"{b:>6} {e:>9.3f} {c:>9.3f} {e / c:>7.2f}", flush=True)
+        line = f"{b:>6} {e:>9.3f} {c:>9.3f} {e / c:>7.2f}"
+        if "vmas" in best:
+            v = 1e3 * best["vmas"] / steps
+            line += f" {v:>9.3f} {v / c:>8.2f}"
+        print(line, flush=True)
 
 
 def size_table(sizes, total: int, rounds: int, reading: str, api: str) -> None:
@@ -105,6 +131,7 @@ def main() -> None:
     parser.add_argument("--reading", default="paper_fit", help="reading of the swarm-scale table")
     parser.add_argument("--api", choices=("step", "_step", "advance"), default="step")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--vmas", action="store_true", help="also time VmasEnv('flocking', n_agents=5)")
     parser.add_argument("--profile", type=int, default=None, metavar="B", help="profile one step at batch B")
     parser.add_argument("--eager", action="store_true", help="with --profile: the eager step")
     parser.add_argument("--n-uavs", type=int, default=None, help="with --profile: swarm size")
@@ -114,7 +141,7 @@ def main() -> None:
         profile(args.profile, not args.eager, args.scenario, args.policy, args.n_uavs)
         return
     if args.batches:
-        batch_table(args.batches, args.rounds, args.scenario, args.policy, args.api)
+        batch_table(args.batches, args.rounds, args.scenario, args.policy, args.api, args.vmas)
     if args.sizes:
         size_table(args.sizes, args.total, args.rounds, args.reading, args.api)
 
