@@ -396,8 +396,9 @@ class FlockingEnv(EnvBase):
         index = index.reshape(-1).long()
         if not index.numel():
             raise ValueError("subset: no world selected (an env holds at least one world)")
-        if bool(((index < -self.num_envs) | (index >= self.num_envs)).any()):
-            raise ValueError(f"subset: world index out of range for {self.num_envs} world(s): {index.tolist()}")
+        outside = index[(index < -self.num_envs) | (index >= self.num_envs)].tolist()
+        if outside:
+            raise ValueError(f"subset: world index {outside[:8]} out of range for {self.num_envs} world(s)")
         small = FlockingEnv(self.cfg, num_envs=int(index.numel()), device=self.device, seed=None,
                             extras=self.extras, compile_step=self.compile_step, check_actions=self.check_actions)
         small.world = self.world[index]

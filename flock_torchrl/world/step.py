@@ -129,10 +129,10 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
 
     Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` holds the
     keys of :data:`~.state.WORLD_STATE`, among them the executed ``command``, the ``instinct``
-    flags and ``terminated`` / ``truncated`` ``[B, 1]``. Nothing is modified in place. ``normals``: the S4 noise of the new state
-    (:func:`sense`). No host synchronisation, no data-dependent shapes: it compiles whole
-    (``torch.compile(advance, fullgraph=True)``): compiled, it runs as :func:`.lanes.advance`
-    (the worlds innermost), whose eager twin this is.
+    flags and ``terminated`` / ``truncated`` ``[B, 1]``. Nothing is modified in place.
+    ``normals``: the S4 noise of the new state (:func:`sense`). No host synchronisation, no
+    data-dependent shapes: it compiles whole (``torch.compile(advance, fullgraph=True)``), and
+    compiled it runs as :func:`.lanes.advance` (the worlds innermost), whose eager twin this is.
     """
     if torch.compiler.is_compiling():
         return lanes.advance(state, sensed, episode, action, static, cfg, normals)
