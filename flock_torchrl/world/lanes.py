@@ -1,6 +1,6 @@
-"""The step's sensing with the worlds innermost, the layout compiled code runs fastest.
+"""The world's step with the worlds innermost, the layout compiled code runs fastest.
 
-:func:`~.step.sense` lays tensors out as ``[B, N, ...]``, natural for eager PyTorch, where each
+:mod:`.step` lays tensors out as ``[B, N, ...]``, natural for eager PyTorch, where each
 operation is one kernel over all its elements. Compiled (inductor's C++ backend), a step is a
 few loop nests vectorised along each tensor's innermost dimension; for beams ``[B, N, 36]``
 or pairs ``[B, N, N]`` that dimension is short (36 or 5 values: the tail of every 16-float
