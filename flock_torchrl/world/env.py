@@ -40,7 +40,8 @@ class FlockingEnv(EnvBase):
     More keys on request (``extras``): ``"physics"`` (``position``, ``velocity``,
     ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``), ``"command"``
     (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
-    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``).
+    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``; with ``compile_step`` both
+    are strided views, the compiled step storing beams outermost).
 
     The worlds' state is one ``TensorDict[B]`` (:attr:`world`): saving is a clone, a subset
     (:meth:`subset`) an index, a partial reset (``"_reset"``) a masked write of freshly drawn
