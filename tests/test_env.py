@@ -1,5 +1,6 @@
 """FlockingEnv as a TorchRL env: specs, shapes, spawn (Eq. 30), S5, termination, partial reset, seeding."""
 
+import dataclasses
 import math
 
 import pytest
@@ -286,3 +287,104 @@ def test_extras_are_opt_in():
     assert {("agents", "position"), ("agents", "scan"), ("agents", "command"), "goal", ("obstacles", "position")} <= full
     with pytest.raises(ValueError, match="extras"):
         FlockingEnv("train", extras=("lidar",))
+
+
+# ---------------------------------------------------------------- state declaration and sizes
+def test_world_state_follows_its_declaration(make_env):
+    from flock_torchrl.world.sensors import observation_size, state_size
+    from flock_torchrl.world.state import WORLD_STATE
+
+    env = make_env("s5", num_envs=3)  # 5 UAVs, 2 moving circles
+    assert (env.obs_dim, env.state_dim) == (observation_size(env.cfg), state_size(env.cfg)) == (17, 20)
+    wider = dataclasses.replace(env.cfg, n_scan=2, n_cam=4)
+    assert (observation_size(wider), state_size(wider)) == (2 + 2 * 2 + 3 * 4, 2 + 2 * 2 + 3 * 4 + 3)
+    expected = {"position": (3, 5, 2), "velocity": (3, 5, 2), "heading": (3, 5), "goal": (3, 2),
+                "moving_position": (3, 2, 2), "moving_velocity": (3, 2, 2), "command": (3, 5, 2),
+                "instinct": (3, 5), "prev_action": (3, 5, 2), "has_prev_action": (3,), "terminated": (3, 1),
+                "truncated": (3, 1)}
+    assert list(WORLD_STATE) == list(expected)
+    td = env.current()
+    td["agents", "action"] = torch.zeros(3, 5, 2)
+    env.step(td)
+    for key, field in WORLD_STATE.items():
+        assert env.world[key].shape == expected[key] and env.world[key].dtype == field.dtype, key
+
+
+# ---------------------------------------------------------------- misuse of the env API
+def test_check_actions_false_skips_only_the_host_checks():
+    nan = torch.full((2, 5, 2), math.nan)
+    env = FlockingEnv("train", num_envs=2, seed=0)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        env.step(env.reset().set(("agents", "action"), nan))
+    lax = FlockingEnv("train", num_envs=2, seed=0, check_actions=False, extras="physics")
+    out = lax.step(lax.reset().set(("agents", "action"), nan))["next"]  # not refused: NaN flows into the world
+    assert out["agents", "position"].isnan().all()
+    # A done world is stepped too (max_steps = 1: done after one step).
+    lax = FlockingEnv("train", num_envs=2, seed=0, check_actions=False, max_steps=1)
+    td = lax.step(lax.reset().set(("agents", "action"), torch.zeros(2, 5, 2)))["next"]
+    assert td["done"].all()
+    lax.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))
+    # Shape and dtype are still checked (no synchronisation needed for those).
+    with pytest.raises(ValueError, match="expected \\[2, 5, 2\\]"):
+        lax.step(lax.reset().set(("agents", "action"), torch.zeros(2, 5, 3)))
+    assert lax.subset([1]).check_actions is False
+
+
+def test_subset_takes_indices_or_a_boolean_mask(make_env):
+    env = make_env("train", num_envs=4, seed=3)
+    small = env.subset(torch.tensor([True, False, True, False]))
+    assert small.num_envs == 2
+    assert torch.equal(small.world["position"], env.world["position"][[0, 2]])
+    assert torch.equal(env.subset([3, 1]).world["goal"], env.world["goal"][[3, 1]])
+    with pytest.raises(ValueError, match="one flag per world"):
+        env.subset(torch.tensor([True, False]))
+    with pytest.raises(ValueError, match="dtype torch.float32"):
+        env.subset(torch.tensor([0.0, 2.0]))
+    with pytest.raises(ValueError, match="out of range"):
+        env.subset([4])
+    with pytest.raises(ValueError, match="no world selected"):
+        env.subset(torch.zeros(4, dtype=torch.bool))
+
+
+def test_stepping_before_reset_is_refused():
+    env = FlockingEnv("train", num_envs=2, seed=0)
+    td = TensorDict({"agents": TensorDict({"action": torch.zeros(2, 5, 2)}, batch_size=[2, 5])}, batch_size=[2])
+    with pytest.raises(ValueError, match=r"call reset\(\) first"):
+        env.step(td)
+
+
+def test_reset_mask_must_be_boolean(make_env):
+    env = make_env("train", num_envs=2)
+    with pytest.raises(ValueError, match=r"_reset.*torch\.bool.*got torch\.float32"):
+        env.reset(TensorDict({"_reset": torch.ones(2, 1)}, batch_size=[2]))
+    with pytest.raises(ValueError, match=r"_reset.*shape \[2, 2\]"):
+        env.reset(TensorDict({"_reset": torch.ones(2, 2, dtype=torch.bool)}, batch_size=[2]))
+
+
+def test_set_state_refuses_other_dtypes_and_shapes(make_env):
+    env = make_env("train", num_envs=2)
+    state = env.get_state()
+    state["world"]["position"] = state["world"]["position"].double()
+    with pytest.raises(ValueError, match=r"'position' has dtype torch\.float64, expected torch\.float32"):
+        env.set_state(state)
+    state = env.get_state()
+    state["world"]["sensed"]["observation"] = state["world"]["sensed"]["observation"].double()
+    with pytest.raises(ValueError, match=r"observation.*dtype torch\.float64, expected torch\.float32"):
+        env.set_state(state)
+    state = env.get_state()
+    state["world"]["heading"] = state["world"]["heading"][:, :3]
+    with pytest.raises(ValueError, match=r"'heading' has shape \[2, 3\], expected \[2, 5\]"):
+        env.set_state(state)
+    env.set_state(env.get_state())  # the env's own state passes
+
+
+@pytest.mark.parametrize("argument", ["position", "heading", "goal", "velocity"])
+def test_place_refuses_nan(make_env, argument):
+    env = make_env("train", num_envs=1, n_uavs=2)
+    layout = {"position": [[[10.0, 10.0], [12.0, 10.0]]], "heading": [[0.0, 0.0]], "goal": [[70.0, 70.0]],
+              "velocity": [[[0.0, 0.0], [0.0, 0.0]]]}
+    bad = torch.tensor(layout[argument]).flatten()
+    bad[0] = math.nan
+    layout[argument] = bad.reshape(torch.tensor(layout[argument]).shape)
+    with pytest.raises(ValueError, match=f"place: {argument} contains NaN"):
+        env.place(**layout)

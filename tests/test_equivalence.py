@@ -8,8 +8,12 @@ offsets are taken per axis, and a compiled step fuses and reorders float32 opera
 1e-6 after one step. Over 40 steps of a swarm under its instinct the trajectories drift
 apart by up to ~2e-4 m, and a beam grazing an obstacle turns that into up to ~1e-2 m of
 range; every discrete outcome (which obstacle a beam hits, which UAVs see each other, the
-instinct's switch, done) stays identical."""
+instinct's switch, done) stays identical.
 
+The compiled step senses with the worlds innermost (world/lanes.py), by the same formulas: run
+eagerly, that code must give what the eager sensing gives, in every scenario."""
+
+import math
 from pathlib import Path
 
 import pytest
@@ -69,7 +73,7 @@ def test_eager_step_matches_the_recorded_one(reference, name):
             assert close(td[key], want[t], key), (name, t, key, (td[key].double() - want[t].double()).abs().max())
 
 
-@pytest.mark.parametrize("name", ["train_policy3_g", "s4_policy3_g"])
+@pytest.mark.parametrize("name", ["train_policy3_g", "s4_policy3_g", "s5_policy3_g"])
 def test_compiled_step_matches_its_eager_twin(reference, name):
     case = reference[name]
     eager = replay(case, *CASES[name])
@@ -77,3 +81,64 @@ def test_compiled_step_matches_its_eager_twin(reference, name):
     for a, b in zip(eager[1:], compiled[1:]):
         for key in KEYS:
             assert close(b[key], a[key], key), (name, key, (b[key].double() - a[key].double()).abs().max())
+
+
+# The compiled step runs as world/lanes.py (worlds innermost); run eagerly, its sense and advance
+# must give what step.sense and step.advance give, key by key, along random rollouts and in the
+# corner cases (one UAV, fewer UAVs than camera slots, no obstacles, moving obstacles, S4 noise).
+LANES_CASES = [("train", "policy3_g", {}), ("s1", "policy3_g", {"n_uavs": 1}), ("s1", "policy1", {"n_uavs": 2}),
+               ("s2", "policy5_g", {}), ("s3", "policy4_g", {}), ("s4", "policy3_g", {}), ("s5", "policy1", {}),
+               ("train", "policy3_g", {"n_uavs": 20, "reading": "paper_fit"})]
+
+
+def same_values(a: dict, b: dict, atol: float = 1e-4) -> None:
+    """Equal keys, shapes, dtypes; discrete values equal, floats within ``atol`` (the same
+    formulas, but sums over the swarm may add in another order). An angle at the wrap (+-pi,
+    or +-1 once divided by pi) may come out on either side: the same direction."""
+    assert a.keys() == b.keys()
+    for key in a:
+        x, y = a[key], b[key]
+        assert x.shape == y.shape and x.dtype == y.dtype, key
+        if x.dtype in (torch.bool, torch.long):
+            assert torch.equal(x, y), key
+            continue
+        diff = (x - y).abs()
+        wrapped = ((diff - 2).abs() <= atol) & ((x.abs() - 1).abs() <= atol) | (
+            ((diff - 2 * math.pi).abs() <= atol) & ((x.abs() - math.pi).abs() <= atol))
+        ok = (diff <= atol) | wrapped | (x.isnan() & y.isnan()) | (x == y)
+        assert ok.all(), (key, diff[~ok].max())
+
+
+@pytest.mark.parametrize("scenario, policy, overrides", LANES_CASES)
+def test_lanes_step_matches_the_eager_step(scenario, policy, overrides):
+    from flock_torchrl.world import lanes
+    from flock_torchrl.world.state import STATE_KEYS
+    from flock_torchrl.world.step import advance, noise_draws, sense
+
+    kwargs = {"reading": "literal", **overrides}
+    env = FlockingEnv(scenario, num_envs=16, seed=5, policy_id=policy, **kwargs)
+    td = env.reset()
+    for t in range(12):
+        world, cfg = env.world, env.cfg
+        normals = noise_draws(cfg, env.num_envs, torch.Generator().manual_seed(t))
+        same_values(sense(world, env._static, cfg, normals), lanes.sense(world, env._static, cfg, normals))
+        td = env.rand_action(td)
+        args = ({k: world[k] for k in STATE_KEYS}, world["sensed"].to_dict(), world["episode"].to_dict(),
+                td["agents", "action"], env._static, cfg, normals)
+        for a, b in zip(advance(*args), lanes.advance(*args)):  # state, sensed, episode, reward
+            same_values(*(x if isinstance(x, dict) else {"reward": x} for x in (a, b)))
+        td = env.step_and_maybe_reset(td)[1]
+
+
+def test_lanes_smallest_orders_ties_by_index_like_the_eager_one():
+    from flock_torchrl.world import lanes
+    from flock_torchrl.world.sensors import smallest
+
+    values = torch.tensor([[3.0, 1.0, 1.0, 2.0, 1.0, float("inf")],
+                           [float("inf")] * 6,
+                           [5.0, 4.0, 4.0, 4.0, 0.0, 0.0]])
+    eager = smallest(values, 4)
+    outer = lanes.smallest(values.T, 4)
+    assert torch.equal(outer[0].T, eager[0])
+    assert outer[1].T[0].tolist() == eager[1][0].tolist() == [1, 2, 4, 3]
+    assert outer[1].T[2].tolist() == eager[1][2].tolist() == [4, 5, 1, 2]

@@ -307,3 +307,51 @@ def test_s4_noise_reaches_the_instinct(make_env, place):
     clean = place(make_env("s1", n_uavs=2, instinct=True), *layout)
     noisy = place(make_env("s1", n_uavs=2, instinct=True, noise=True), *layout)
     assert not torch.allclose(clean.world["sensed"]["instinct_command"][0, 0], noisy.world["sensed"]["instinct_command"][0, 0])
+
+
+# ---------------------------------------------------------------- packed neighbours (large swarms)
+@pytest.mark.parametrize("spacing", [3.5, 0.9])  # sparse: packed per UAV; dense: every pair kept
+def test_near_neighbours_sense_what_all_pairs_sense(spacing):
+    from flock_torchrl.world.instinct import instinct_command
+    from flock_torchrl.world.metrics import closest_pair
+    from flock_torchrl.world.sensors import near_neighbours, sensor_normals
+
+    # 3 worlds of 36 UAVs on a jittered 6 x 6 grid; two exact distance ties in world 0 (UAV 0
+    # sees UAVs 1 and 6 at the same distance) keep the order-by-index rule honest.
+    g = torch.Generator().manual_seed(0)
+    grid = torch.stack(torch.meshgrid(torch.arange(6.0), torch.arange(6.0), indexing="ij"), -1).reshape(36, 2)
+    position = (grid * spacing + 0.3 * torch.rand(3, 36, 2, generator=g)) + 10.0
+    position[0, 0] = torch.tensor([20.0, 20.0])
+    position[0, 1] = torch.tensor([20.0 + spacing, 20.0])
+    position[0, 6] = torch.tensor([20.0, 20.0 + spacing])
+    heading = (torch.rand(3, 36, generator=g) * 2 - 1) * PI
+    heading[0, 0] = PI / 4  # both tied UAVs inside the field of view
+    dense = observe_neighbours(position, heading, 5.0, FOV / 2)
+    near, pairs, closest = near_neighbours(position, heading, 5.0, FOV / 2)
+    assert (near.distance.shape[-1] < 36) == (spacing > 1)
+    assert dense.distance[0, 0, 1] == dense.distance[0, 0, 6] and dense.visible[0, 0, [1, 6]].all()
+    assert torch.equal(closest, closest_pair(dense.distance))
+    assert torch.equal(near.nearest_distance(), dense.nearest_distance())
+    # Same formulas; atan2 may round its last bit differently where an entry falls in another
+    # lane of the vectorised loop.
+    def same_camera(a, b):
+        assert torch.allclose(camera_observation(a, 3, 5.0), camera_observation(b, 3, 5.0), atol=1e-6, rtol=0)
+
+    same_camera(near, dense)
+    wide = (visibility(dense.distance, dense.bearing, 5.0, PI),
+            visibility(near.distance, near.bearing, 5.0, PI, pairs.valid))
+    assert torch.equal(wide[0].sum(-1), wide[1].sum(-1))
+    same_camera(near.with_visibility(wide[1]), dense.with_visibility(wide[0]))
+    beams, goal = torch.full((3, 36, 36), 10.0), torch.tensor([[70.0, 70.0]] * 3)
+    for nb_dense, nb_near in [(dense, near)] + [
+            tuple(add_sensor_noise(beams, nb, scan_std=0.1, distance_std=0.2, angle_std=0.05, max_range=10.0,
+                                   normals=dict(normals, **{k: take(normals[k]) for k in
+                                                            ("distance", "bearing", "heading_difference")}))[1]
+                  for nb, take in ((dense, lambda x: x), (near, pairs.take)))
+            for normals in [sensor_normals(3, 36, 36, torch.Generator().manual_seed(1))]]:
+        same_camera(nb_near, nb_dense)
+        a = instinct_command(position, heading, goal, beams, nb_dense, gain=1.0, r0=5.0, safe_distance=2.0,
+                             tangential=True)
+        b = instinct_command(position, heading, goal, beams, nb_near, gain=1.0, r0=5.0, safe_distance=2.0,
+                             tangential=True)
+        assert torch.equal(a[0], b[0]) and torch.allclose(a[1], b[1], atol=1e-5, rtol=0)

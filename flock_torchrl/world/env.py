@@ -14,9 +14,11 @@ from torchrl.envs import EnvBase
 
 from ..config import ScenarioConfig, scenario_config
 from .geometry import Obstacles
-from .metrics import FLAG_METRICS, METRIC_KEYS, episode_summary, new_accumulator
+from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
+from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout
-from .step import advance, noise_draws, sense
+from .state import STATE_KEYS, check_state, empty_state
+from .step import noise_draws, sense, transition
 
 ACTION = ("agents", "action")
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
@@ -26,9 +28,6 @@ EXTRAS = {
     "command": (("agents", "command"), ("agents", "instinct")),
     "laser": (("agents", "scan"), ("agents", "scan_obstacle")),
 }
-# Per-world state the env owns (plus the "episode" accumulator and the "sensed" cache).
-_STATE_KEYS = ("position", "velocity", "heading", "goal", "moving_position", "moving_velocity", "command", "instinct",
-               "prev_action", "has_prev_action", "terminated", "truncated")
 
 
 class FlockingEnv(EnvBase):
@@ -41,7 +40,8 @@ class FlockingEnv(EnvBase):
     More keys on request (``extras``): ``"physics"`` (``position``, ``velocity``,
     ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``), ``"command"``
     (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
-    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``).
+    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``; with ``compile_step`` both
+    are strided views, the compiled step storing beams outermost).
 
     The worlds' state is one ``TensorDict[B]`` (:attr:`world`): saving is a clone, a subset
     (:meth:`subset`) an index, a partial reset (``"_reset"``) a masked write of freshly drawn
@@ -62,6 +62,12 @@ class FlockingEnv(EnvBase):
         compile_step: ``torch.compile`` the world's step (:func:`~flock_torchrl.world.step.advance`);
             its eager twin (``False``) gives the same transitions up to float round-off. Worth it
             for a fixed batch (training); each new batch size compiles again.
+        check_actions: check every step's action for NaN / inf and refuse to step a world that
+            is done (``ValueError``). Both checks read a tensor on the host, which waits for the
+            device; with ``False`` the step skips exactly these two (a NaN action then flows
+            into the world, a done world keeps moving) and only checks the action's key, shape
+            and floating dtype (Python-side, no synchronisation), casts it to float32 on the
+            env's device and clips it to the action box, so a GPU step never waits for the host.
         **overrides: any scenario field, e.g. ``tau_v=0.5``, ``n_uavs=9``.
 
     Example:
@@ -79,7 +85,7 @@ class FlockingEnv(EnvBase):
     def __init__(self, scenario: str | ScenarioConfig | DictConfig | Mapping[str, Any] = "train", num_envs: int = 1,
                  device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
                  policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
-                 **overrides: Any) -> None:
+                 check_actions: bool = True, **overrides: Any) -> None:
         if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
             cfg = ScenarioConfig.from_config(scenario)  # checked once: a checked scenario is taken as it is
         else:
@@ -92,8 +98,8 @@ class FlockingEnv(EnvBase):
         self.num_envs = num_envs
         self.n_agents = cfg.n_uavs
         self.extras = _extras(extras)
-        self.obs_dim = 2 + 2 * cfg.n_scan + 3 * cfg.n_cam
-        self.state_dim = self.obs_dim + 3
+        self.obs_dim = observation_size(cfg)
+        self.state_dim = state_size(cfg)
         self.group_map = {"agents": [f"agent_{i}" for i in range(cfg.n_uavs)]}
         self._static = Obstacles(
             torch.tensor(cfg.circles, dtype=torch.float32, device=self.device).reshape(1, -1, 3),
@@ -101,7 +107,10 @@ class FlockingEnv(EnvBase):
         )
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
-        self._advance = torch.compile(advance, dynamic=False, fullgraph=True) if self.compile_step else advance
+        self.check_actions = bool(check_actions)
+        self._transition = (torch.compile(transition, dynamic=False, fullgraph=True) if self.compile_step
+                            else transition)
+        self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
         self.world = self._empty_world()
         self._sensed_once = False
@@ -159,42 +168,43 @@ class FlockingEnv(EnvBase):
                                    truncated=flag(1, batch=(b,)), shape=(b,), device=dev)
 
     # ------------------------------------------------------------------ state
-    def _empty_world(self) -> TensorDict:
-        b, n, k, dev = self.num_envs, self.n_agents, self.cfg.n_moving, self.device
-
-        def zeros(*shape, dtype=torch.float32):
-            return torch.zeros(*shape, dtype=dtype, device=dev)
-
-        return TensorDict({
-            "position": zeros(b, n, 2), "velocity": zeros(b, n, 2), "heading": zeros(b, n), "goal": zeros(b, 2),
-            "moving_position": zeros(b, k, 2), "moving_velocity": zeros(b, k, 2), "command": zeros(b, n, 2),
-            "instinct": zeros(b, n, dtype=torch.bool), "prev_action": zeros(b, n, 2),
-            "has_prev_action": zeros(b, dtype=torch.bool), "terminated": zeros(b, 1, dtype=torch.bool),
-            "truncated": zeros(b, 1, dtype=torch.bool), "episode": new_accumulator(b, dev),
-        }, batch_size=[b], device=dev)
+    def _empty_world(self, sensed: bool = False) -> TensorDict:
+        """All-zero worlds (before the first reset); ``sensed``: with the sensing of that state
+        (noise-free), the layout every stored world has."""
+        b, dev = self.num_envs, self.device
+        state = empty_state(self.cfg, b, dev)
+        world = {**state, "episode": new_accumulator(b, dev)}
+        if sensed:
+            n, k = self.cfg.n_uavs, self.cfg.n_beams
+            normals = None if not self.cfg.noise else {
+                "scan": torch.zeros(b, n, k, device=dev),
+                **{key: torch.zeros(b, n, n, device=dev) for key in ("distance", "bearing", "heading_difference")}}
+            world["sensed"] = sense(state, self._static, self.cfg, normals)
+        return TensorDict(world, batch_size=[b], device=dev)
 
     def _fresh_worlds(self, count: int) -> TensorDict:
         """``count`` new episodes: spawned (Eq. 30), at rest, sensed."""
         layout = sample_layout(self.cfg, count, self._static, self._generator, self.device)
-        n, dev = self.n_agents, self.device
-        state = {
-            "position": layout.position, "velocity": torch.zeros_like(layout.position), "heading": layout.heading,
-            "goal": layout.goal, "moving_position": layout.moving_position,
-            "moving_velocity": layout.moving_velocity, "command": torch.zeros_like(layout.position),
-            "instinct": torch.zeros(count, n, dtype=torch.bool, device=dev),
-            "prev_action": torch.zeros_like(layout.position),
-            "has_prev_action": torch.zeros(count, dtype=torch.bool, device=dev),
-            "terminated": torch.zeros(count, 1, dtype=torch.bool, device=dev),
-            "truncated": torch.zeros(count, 1, dtype=torch.bool, device=dev),
-        }
+        dev = self.device
+        state = empty_state(self.cfg, count, dev)
+        state.update(position=layout.position, heading=layout.heading, goal=layout.goal,
+                     moving_position=layout.moving_position, moving_velocity=layout.moving_velocity)
         sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, count, self._generator, dev))
         return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
                           batch_size=[count], device=dev)
 
-    def _output(self) -> TensorDict:
+    def _output(self, summary: Mapping[str, torch.Tensor] | None = None, reward: torch.Tensor | None = None
+                ) -> TensorDict:
+        """What ``reset`` / ``step`` return for the current world; ``summary``: the episode
+        summary if the step computed it already, ``reward [B, N]`` after a step.
+
+        Built with ``TensorDict._new_unsafe``: every entry comes from the world, whose shapes
+        and device are the env's by construction, so the per-entry checks would only cost time."""
         world, extras = self.world, self.extras
         sensed = world["sensed"]
         agents = {"observation": sensed["observation"], "state": sensed["state"]}
+        if reward is not None:
+            agents["reward"] = reward[..., None]
         if "physics" in extras:
             agents.update(position=world["position"], velocity=world["velocity"], heading=world["heading"])
         if "command" in extras:
@@ -202,17 +212,18 @@ class FlockingEnv(EnvBase):
         if "laser" in extras:
             agents.update(scan=sensed["scan"], scan_obstacle=sensed["scan_obstacle"])
         terminated, truncated = world["terminated"], world["truncated"]
+        if summary is None:
+            summary = summary_values(world["episode"], self.cfg.collision_distance)
         out = {
-            "agents": TensorDict(agents, batch_size=(self.num_envs, self.n_agents), device=self.device),
-            "episode": episode_summary(world["episode"], self.cfg.collision_distance),
+            "agents": TensorDict._new_unsafe(agents, batch_size=self._agent_batch, device=self.device),
+            "episode": summary,
             "terminated": terminated, "truncated": truncated, "done": terminated | truncated,
         }
         if "physics" in extras:
             out["goal"] = world["goal"]
             if self.cfg.n_moving:
-                out["obstacles"] = TensorDict({"position": world["moving_position"]}, batch_size=self.batch_size,
-                                              device=self.device)
-        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+                out["obstacles"] = {"position": world["moving_position"]}
+        return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
 
     # ------------------------------------------------------------------ TorchRL API
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDict:
@@ -225,7 +236,15 @@ class FlockingEnv(EnvBase):
     def _reset_worlds(self, tensordict: TensorDictBase | None) -> TensorDict:
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
-            mask = tensordict.get("_reset").reshape(self.num_envs).to(self.device)
+            mask = tensordict.get("_reset")
+            if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
+                raise ValueError(f"FlockingEnv.reset: \"_reset\" must be a torch.bool mask of {self.num_envs} "
+                                 f"world(s) (shape [{self.num_envs}, 1]), got "
+                                 f"{mask.dtype if isinstance(mask, torch.Tensor) else type(mask).__name__}")
+            if mask.numel() != self.num_envs:
+                raise ValueError(f"FlockingEnv.reset: \"_reset\" has shape {list(mask.shape)}, expected "
+                                 f"[{self.num_envs}, 1] (one flag per world)")
+            mask = mask.reshape(self.num_envs).to(self.device)
         if self._restored and mask is None:  # a restored state continues its episodes
             self._restored = False
             return self._output()
@@ -242,22 +261,27 @@ class FlockingEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
         start = time.perf_counter()
+        if not self._sensed_once:
+            raise ValueError("FlockingEnv.step: no episode has started; call reset() first (or place(), set_state())")
         action = self._checked_action(tensordict)
         world = self.world
-        state = {k: world[k] for k in _STATE_KEYS}
+        state = {k: world[k] for k in STATE_KEYS}
         normals = noise_draws(self.cfg, self.num_envs, self._generator, self.device)
-        state, sensed, episode, reward = self._advance(state, world["sensed"].to_dict(), world["episode"].to_dict(),
-                                                       action, self._static, self.cfg, normals)
-        self.world = TensorDict({**state, "sensed": sensed, "episode": episode}, batch_size=self.batch_size,
-                                device=self.device)
-        out = self._output()
-        out.set(("agents", "reward"), reward[..., None])
+        state, sensed, episode, reward, summary = self._transition(
+            state, world["sensed"].to_dict(), world["episode"].to_dict(), action, self._static, self.cfg, normals)
+        # The step's outputs have the world's shapes by construction: no per-entry checks.
+        self.world = TensorDict._new_unsafe({**state, "sensed": sensed, "episode": episode},
+                                            batch_size=self.batch_size, device=self.device)
+        out = self._output(summary, reward)
         self.busy_seconds += time.perf_counter() - start
         return out
 
     def _checked_action(self, tensordict: TensorDictBase) -> torch.Tensor:
         """The action of every UAV as a float32 tensor on the env's device, clipped to the
-        action box; anything else is a ``ValueError`` naming the key and what was expected."""
+        action box; anything else is a ``ValueError`` naming the key and what was expected.
+
+        With ``check_actions=False`` the two checks that read tensor values on the host (a
+        device synchronisation) are skipped: finite values, and no world done."""
         expected = (self.num_envs, self.n_agents, 2)
         action = tensordict.get(ACTION, None)
         if action is None:
@@ -270,16 +294,19 @@ class FlockingEnv(EnvBase):
             raise ValueError(f"FlockingEnv.step: {ACTION} has dtype {action.dtype}, expected a floating point "
                              "tensor (float32; other float types are cast)")
         action = action.to(self.device, torch.float32)
-        if not bool(torch.isfinite(action).all()):
-            raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
-        done = (self.world["terminated"] | self.world["truncated"]).reshape(-1)
-        if bool(done.any()):
-            worlds = done.nonzero().reshape(-1).tolist()
-            shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
-            raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
-                             "env.step_and_maybe_reset, rollout and collectors do this)")
         limit = 1.0 if self.cfg.action_mode == "policy" else self.cfg.v_max
-        return action.clamp(-limit, limit)
+        if not self.check_actions:
+            return action.clamp(-limit, limit)
+        finite = torch.isfinite(action).all()
+        done = (self.world["terminated"] | self.world["truncated"]).reshape(-1)
+        if bool(finite & ~done.any()):  # one host synchronisation for both checks
+            return action.clamp(-limit, limit)
+        if not bool(finite):
+            raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
+        worlds = done.nonzero().reshape(-1).tolist()
+        shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
+        raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
+                         "env.step_and_maybe_reset, rollout and collectors do this)")
 
     def _set_seed(self, seed: int | None) -> None:
         if seed is None:
@@ -293,14 +320,26 @@ class FlockingEnv(EnvBase):
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`get_state`; the next full ``reset()`` returns the restored episodes
-        instead of drawing new ones (so a collector built afterwards continues them)."""
-        world = TensorDict(state["world"], batch_size=self.batch_size, device=self.device)
-        reference = self._fresh_worlds(self.num_envs) if not self._sensed_once else self.world
-        for key, value in reference.items(include_nested=True, leaves_only=True):
-            got = world.get(key, None)
-            if got is None or got.shape != value.shape:
-                raise ValueError(f"env state {key!r}: expected shape {list(value.shape)}, got "
-                                 f"{None if got is None else list(got.shape)}")
+        instead of drawing new ones (so a collector built afterwards continues them).
+
+        Every tensor must have the shape and dtype this env keeps (no silent casts: a float64
+        state would not continue bit for bit); anything else is a ``ValueError`` naming the key."""
+        reference = self._empty_world(sensed=True)
+        world = state["world"] if isinstance(state, Mapping) and "world" in state else None
+        if not isinstance(world, (Mapping, TensorDictBase)):
+            raise ValueError("env state: expected a mapping with a 'world' entry (what get_state() returns)")
+        world = TensorDict(world, batch_size=[], device=self.device)
+        check_state(self.cfg, world, self.num_envs, "env state")
+        for part in ("episode", "sensed"):  # the metrics accumulator and the sensing cache
+            for key, value in reference[part].items(include_nested=True, leaves_only=True):
+                key = (part, *key) if isinstance(key, tuple) else (part, key)
+                got = world.get(key, None)
+                if got is None or got.shape != value.shape:
+                    raise ValueError(f"env state {key!r}: expected shape {list(value.shape)}, got "
+                                     f"{None if got is None else list(got.shape)}")
+                if got.dtype != value.dtype:
+                    raise ValueError(f"env state {key!r}: has dtype {got.dtype}, expected {value.dtype}")
+        world.batch_size = self.batch_size
         self.world = world
         self._generator.set_state(state["generator"])
         self._sensed_once = True
@@ -311,27 +350,24 @@ class FlockingEnv(EnvBase):
         """Start an episode in every world from an exact physical state and return what
         ``reset`` would: ``position [B, N, 2]``, ``heading [B, N]``, ``goal [B, 2]``,
         ``velocity [B, N, 2]`` (default 0), ``moving_position [B, K, 2]`` (S5; default: kept).
-        For tests, demos and scripted scenes."""
+        For tests, demos and scripted scenes; a wrong shape or a NaN / inf value is a
+        ``ValueError`` naming the argument."""
         def tensor(x: Any) -> torch.Tensor:
             return torch.as_tensor(x, dtype=torch.float32, device=self.device)
 
         if not self._sensed_once:
             self.world = self._fresh_worlds(self.num_envs)
             self._sensed_once = True
-        position = tensor(position)
-        state = {k: self.world[k] for k in _STATE_KEYS}
-        state.update(
-            position=position, heading=tensor(heading), goal=tensor(goal),
-            velocity=torch.zeros_like(position) if velocity is None else tensor(velocity),
-            command=torch.zeros_like(position), instinct=torch.zeros_like(state["instinct"]),
-            prev_action=torch.zeros_like(position), has_prev_action=torch.zeros_like(state["has_prev_action"]),
-            terminated=torch.zeros_like(state["terminated"]), truncated=torch.zeros_like(state["truncated"]))
-        if moving_position is not None:
-            state["moving_position"] = tensor(moving_position)
-        for key in ("position", "heading", "goal", "velocity", "moving_position"):
-            if state[key].shape != self.world[key].shape:
-                raise ValueError(f"place: {key} has shape {list(state[key].shape)}, expected "
-                                 f"{list(self.world[key].shape)}")
+        given = {"position": position, "heading": heading, "goal": goal, "velocity": velocity,
+                 "moving_position": moving_position}
+        state = empty_state(self.cfg, self.num_envs, self.device)
+        state.update(moving_position=self.world["moving_position"], moving_velocity=self.world["moving_velocity"])
+        state.update({key: tensor(value) for key, value in given.items() if value is not None})
+        check_state(self.cfg, state, self.num_envs, "place", keys=tuple(given))
+        for key, value in given.items():
+            if value is not None and not bool(torch.isfinite(state[key]).all()):
+                raise ValueError(f"place: {key} contains NaN or inf; positions, headings, goals and velocities "
+                                 "must be finite")
         sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, self.num_envs, self._generator, self.device))
         self.world = TensorDict({**state, "episode": new_accumulator(self.num_envs, self.device), "sensed": sensed},
                                 batch_size=self.batch_size, device=self.device)
@@ -343,12 +379,29 @@ class FlockingEnv(EnvBase):
         tensordict to put the next action into."""
         return self._output()
 
-    def subset(self, index: torch.Tensor | Sequence[int]) -> "FlockingEnv":
+    def subset(self, index: torch.Tensor | Sequence[int] | Sequence[bool]) -> "FlockingEnv":
         """A new env holding worlds ``index`` of this one, mid-episode (each continues exactly
-        as it would have here, S4 noise draws aside: their shape follows the batch)."""
-        index = torch.as_tensor(index, device=self.device).reshape(-1)
+        as it would have here, S4 noise draws aside: their shape follows the batch).
+
+        ``index``: world indices (integers, in the order wanted), or a boolean mask with one
+        flag per world (the worlds where it is ``True``, in order)."""
+        index = torch.as_tensor(index, device=self.device)
+        if index.dtype == torch.bool:
+            if index.numel() != self.num_envs:
+                raise ValueError(f"subset: a boolean mask needs one flag per world ({self.num_envs}), got shape "
+                                 f"{list(index.shape)}")
+            index = index.reshape(-1).nonzero().reshape(-1)
+        elif index.is_floating_point() or index.is_complex():
+            raise ValueError(f"subset: index has dtype {index.dtype}; expected world indices (integers) or a "
+                             "boolean mask")
+        index = index.reshape(-1).long()
+        if not index.numel():
+            raise ValueError("subset: no world selected (an env holds at least one world)")
+        outside = index[(index < -self.num_envs) | (index >= self.num_envs)].tolist()
+        if outside:
+            raise ValueError(f"subset: world index {outside[:8]} out of range for {self.num_envs} world(s)")
         small = FlockingEnv(self.cfg, num_envs=int(index.numel()), device=self.device, seed=None,
-                            extras=self.extras, compile_step=self.compile_step)
+                            extras=self.extras, compile_step=self.compile_step, check_actions=self.check_actions)
         small.world = self.world[index]
         small._generator.set_state(self._generator.get_state())
         small._sensed_once = self._sensed_once

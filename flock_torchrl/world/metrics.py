@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Mapping
 
 import torch
 from tensordict import TensorDict
@@ -139,7 +140,28 @@ def update_episode(acc: TensorDict, stats: dict[str, torch.Tensor], reached: tor
     return acc
 
 
-def episode_summary(acc: TensorDict, collision_distance: float) -> TensorDict:
+def summary_values(acc: Mapping[str, torch.Tensor], collision_distance: float) -> dict[str, torch.Tensor]:
+    """:func:`episode_summary` as a plain dict of ``[B]`` tensors (what the compiled step returns)."""
+    steps = acc["steps"].clamp_min(1).to(acc["sum_d_c"].dtype)
+    success = acc["reached"] & ~acc["crashed"]
+    return {
+        "success": success,
+        "safe_success": success & (acc["d_min_uav"] >= collision_distance),
+        "reached": acc["reached"].clone(),
+        "crashed": acc["crashed"].clone(),
+        "d_min_obs": acc["d_min_obs"].clone(),
+        "d_min_uav": acc["d_min_uav"].clone(),
+        "d_c": acc["sum_d_c"] / steps,
+        "v_error": acc["sum_v_error"] / steps,
+        "phi_error": acc["sum_phi_error"] / steps,
+        "speed": acc["sum_speed"] / steps,
+        "t_goal": acc["t_goal"].clone(),
+        "steps": acc["steps"].clone(),
+        "return": acc["return"].clone(),
+    }
+
+
+def episode_summary(acc: Mapping[str, torch.Tensor], collision_distance: float) -> TensorDict:
     """The section 5 metrics of each episode so far, batch ``[B]``.
 
     ``success``: goal reached, no crash. ``safe_success``: success and no UAV pair ever closer
@@ -147,24 +169,5 @@ def episode_summary(acc: TensorDict, collision_distance: float) -> TensorDict:
     ``t_goal`` is NaN for an episode that has not reached the goal; ``return`` is the
     undiscounted episode reward averaged over the UAVs.
     """
-    steps = acc["steps"].clamp_min(1).to(acc["sum_d_c"].dtype)
-    success = acc["reached"] & ~acc["crashed"]
-    return TensorDict(
-        {
-            "success": success,
-            "safe_success": success & (acc["d_min_uav"] >= collision_distance),
-            "reached": acc["reached"].clone(),
-            "crashed": acc["crashed"].clone(),
-            "d_min_obs": acc["d_min_obs"].clone(),
-            "d_min_uav": acc["d_min_uav"].clone(),
-            "d_c": acc["sum_d_c"] / steps,
-            "v_error": acc["sum_v_error"] / steps,
-            "phi_error": acc["sum_phi_error"] / steps,
-            "speed": acc["sum_speed"] / steps,
-            "t_goal": acc["t_goal"].clone(),
-            "steps": acc["steps"].clone(),
-            "return": acc["return"].clone(),
-        },
-        batch_size=acc.batch_size,
-        device=acc.device,
-    )
+    values = summary_values(acc, collision_distance)
+    return TensorDict(values, batch_size=values["steps"].shape, device=values["steps"].device)

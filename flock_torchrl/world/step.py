@@ -7,10 +7,9 @@ the pairwise UAV quantities once. :func:`advance` applies a batch of actions: th
 (Eq. 21-25), termination and the episode metrics (Eq. 31-36). Neither touches a Python
 object per world or per UAV; the env (:mod:`.env`) owns the state and calls them.
 
-The state is a flat mapping of tensors with leading batch dimension ``B``:
-``position [B, N, 2]``, ``velocity [B, N, 2]``, ``heading [B, N]``, ``goal [B, 2]``,
-``moving_position [B, K, 2]``, ``moving_velocity [B, K, 2]``, ``prev_action [B, N, 2]``,
-``has_prev_action [B]``; the metrics accumulator is a separate mapping (:mod:`.metrics`).
+The state is a flat mapping of tensors with leading batch dimension ``B``, the keys, shapes
+and dtypes of :data:`~.state.WORLD_STATE`; the metrics accumulator is a separate mapping
+(:mod:`.metrics`).
 """
 
 from __future__ import annotations
@@ -21,13 +20,15 @@ from typing import Mapping
 import torch
 
 from ..config import ScenarioConfig
+from . import lanes
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
 from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
 from .instinct import instinct_command
-from .metrics import closest_pair, step_statistics, update_episode
+from .metrics import step_statistics, summary_values, update_episode
 from .reward import total_reward
-from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, observe_neighbours,
+from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, near_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
+from .state import world_state
 
 Tensors = Mapping[str, torch.Tensor]
 
@@ -66,21 +67,29 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         from the sensed readings), ``d_scan1``, ``d_uav1`` (true), ``d_goal``, ``alpha_goal``,
         ``obstacle_distance`` (true distance to the nearest surface), all ``[B, N]``; and the
         ``closest_pair`` of UAVs ``[B]`` (true), for the metrics.
+
+    Under ``torch.compile`` the same quantities come from :func:`.lanes.sense`, which lays the
+    worlds innermost (the layout inductor's vectorised loops want); this eager code is its twin.
     """
+    if torch.compiler.is_compiling():
+        return lanes.sense(state, static, cfg, normals)
     position, heading, goal = state["position"], state["heading"], state["goal"]
     obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
     beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range)
-    true_neighbours = observe_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
+    # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
+    true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
     # The critic's camera sees all round: the same measurements, wider visibility.
     all_round = true_neighbours.with_visibility(
-        visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi))
+        visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi, pairs.valid))
     sensed_beams, neighbours = beams, true_neighbours
     if cfg.noise:
         if normals is None:
             raise ValueError("sense: the scenario has sensor noise; pass its normals (sensors.sensor_normals)")
+        packed = {"scan": normals["scan"],
+                  **{k: pairs.take(normals[k]) for k in ("distance", "bearing", "heading_difference")}}
         sensed_beams, neighbours = add_sensor_noise(
             beams, true_neighbours, scan_std=cfg.noise_scan, distance_std=cfg.noise_distance,
-            angle_std=cfg.noise_angle, max_range=cfg.laser_range, normals=normals)
+            angle_std=cfg.noise_angle, max_range=cfg.laser_range, normals=packed)
     # The shortest beams, selected once: the observation, the instinct and (without noise) the
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
@@ -109,7 +118,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
         "alpha_goal": relative_angle(to_goal, heading),
         "obstacle_distance": nearest_obstacle_distance(position, obstacles),
-        "closest_pair": closest_pair(true_neighbours.distance),
+        "closest_pair": closest,
     }
 
 
@@ -118,12 +127,15 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
             ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]:
     """One step of every world under ``action [B, N, 2]`` (already checked and clipped).
 
-    Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` also holds
-    the executed ``command``, the ``instinct`` flags and ``terminated`` / ``truncated``
-    ``[B, 1]``. Nothing is modified in place. ``normals``: the S4 noise of the new state
-    (:func:`sense`). No host synchronisation, no data-dependent shapes: it compiles whole
-    (``torch.compile(advance, fullgraph=True)``).
+    Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` holds the
+    keys of :data:`~.state.WORLD_STATE`, among them the executed ``command``, the ``instinct``
+    flags and ``terminated`` / ``truncated`` ``[B, 1]``. Nothing is modified in place.
+    ``normals``: the S4 noise of the new state (:func:`sense`). No host synchronisation, no
+    data-dependent shapes: it compiles whole (``torch.compile(advance, fullgraph=True)``), and
+    compiled it runs as :func:`.lanes.advance` (the worlds innermost), whose eager twin this is.
     """
+    if torch.compiler.is_compiling():
+        return lanes.advance(state, sensed, episode, action, static, cfg, normals)
     if cfg.action_mode == "policy":
         command = action_to_command(action, state["heading"])
     else:  # the action is the velocity command (rule-based controllers)
@@ -140,13 +152,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     if cfg.n_moving:
         moving_position, moving_velocity = reflect_in_box(
             moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
-    new = {
-        "position": position, "velocity": velocity, "heading": heading, "goal": state["goal"],
-        "moving_position": moving_position, "moving_velocity": moving_velocity,
-        "command": command, "instinct": use, "prev_action": action,
-        "has_prev_action": torch.ones_like(state["has_prev_action"]),
-    }
-    now = sense(new, static, cfg, normals)
+    physical = {"position": position, "heading": heading, "goal": state["goal"], "moving_position": moving_position}
+    now = sense(physical, static, cfg, normals)
     prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
     d_collision = now["d_scan1"]
     if cfg.collision_reward_source == "min_uav_scan":
@@ -165,6 +172,19 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     if cfg.uav_collision_terminates:
         terminated = terminated | (stats["uav"] < cfg.collision_distance)
     episode = update_episode(dict(episode), stats, reached, crashed, cfg.dt, reward.mean(-1))
-    new["terminated"] = terminated[:, None]
-    new["truncated"] = (episode["steps"] >= cfg.max_steps)[:, None] & ~new["terminated"]
+    new = world_state(
+        position=position, velocity=velocity, heading=heading, goal=state["goal"], moving_position=moving_position,
+        moving_velocity=moving_velocity, command=command, instinct=use, prev_action=action,
+        has_prev_action=torch.ones_like(state["has_prev_action"]), terminated=terminated[:, None],
+        truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, now, episode, reward
+
+
+def transition(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
+               cfg: ScenarioConfig, normals: Tensors | None = None
+               ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor,
+                          dict[str, torch.Tensor]]:
+    """:func:`advance`, plus the episode summary the env returns with it
+    (:func:`~.metrics.summary_values`): the function the env runs (and compiles) per step."""
+    state, sensed, episode, reward = advance(state, sensed, episode, action, static, cfg, normals)
+    return state, sensed, episode, reward, summary_values(episode, cfg.collision_distance)

@@ -1,0 +1,90 @@
+"""The per-world state the env owns, declared once.
+
+:data:`WORLD_STATE` names every tensor of one world's physical state (and of the step that
+led to it), with its shape per world as a function of the scenario and its dtype. The env
+builds empty and fresh worlds from it (:func:`empty_state`), checks what ``set_state`` and
+``place`` receive against it (:func:`check_state`), and the pure step
+(:func:`~flock_torchrl.world.step.advance`) returns exactly these keys (:func:`world_state`).
+The running episode metrics (:func:`~flock_torchrl.world.metrics.new_accumulator`) and the
+sensed quantities (:func:`~flock_torchrl.world.step.sense`) sit next to this state in the
+env's world TensorDict.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import torch
+
+from ..config import ScenarioConfig
+
+
+@dataclass(frozen=True)
+class StateField:
+    """One per-world tensor: ``shape`` per world, each entry an int or the name of a
+    :class:`~flock_torchrl.config.ScenarioConfig` field (``"n_uavs"``, ``"n_moving"``)."""
+
+    shape: tuple[int | str, ...]
+    dtype: torch.dtype
+    doc: str
+
+    def size(self, cfg: ScenarioConfig) -> tuple[int, ...]:
+        """The shape of this field for one world of ``cfg``."""
+        return tuple(getattr(cfg, d) if isinstance(d, str) else d for d in self.shape)
+
+
+WORLD_STATE: dict[str, StateField] = {
+    "position": StateField(("n_uavs", 2), torch.float32, "UAV positions p_i (m)"),
+    "velocity": StateField(("n_uavs", 2), torch.float32, "UAV velocities v_i (m/s)"),
+    "heading": StateField(("n_uavs",), torch.float32, "UAV headings phi_i (rad, [-pi, pi))"),
+    "goal": StateField((2,), torch.float32, "the swarm's goal p_g (m)"),
+    "moving_position": StateField(("n_moving", 2), torch.float32, "centres of the moving circles (S5; m)"),
+    "moving_velocity": StateField(("n_moving", 2), torch.float32, "velocities of the moving circles (m/s)"),
+    "command": StateField(("n_uavs", 2), torch.float32, "the velocity command executed on the last step"),
+    "instinct": StateField(("n_uavs",), torch.bool, "which UAVs flew the instinct's command on the last step"),
+    "prev_action": StateField(("n_uavs", 2), torch.float32, "the last step's action (the smoothness reward's a_t-1)"),
+    "has_prev_action": StateField((), torch.bool, "whether the episode has taken a step (prev_action is set)"),
+    "terminated": StateField((1,), torch.bool, "the episode ended: goal reached or crash"),
+    "truncated": StateField((1,), torch.bool, "the episode ran out of steps (and did not terminate)"),
+}
+STATE_KEYS = tuple(WORLD_STATE)
+
+
+def state_shapes(cfg: ScenarioConfig, batch: int) -> dict[str, tuple[int, ...]]:
+    """The shape of every state tensor for ``batch`` worlds."""
+    return {key: (batch, *field.size(cfg)) for key, field in WORLD_STATE.items()}
+
+
+def empty_state(cfg: ScenarioConfig, batch: int, device: torch.device | str | None = None) -> dict[str, torch.Tensor]:
+    """All-zero (``False``) state tensors of ``batch`` worlds."""
+    return {key: torch.zeros(shape, dtype=WORLD_STATE[key].dtype, device=device)
+            for key, shape in state_shapes(cfg, batch).items()}
+
+
+def world_state(**values: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The state mapping of exactly the keys of :data:`WORLD_STATE`, in its order (a missing
+    or unknown key is an error: the step and the declaration cannot drift apart)."""
+    missing, unknown = WORLD_STATE.keys() - values.keys(), values.keys() - WORLD_STATE.keys()
+    if missing or unknown:
+        raise KeyError(f"world state: missing {sorted(missing)}, unknown {sorted(unknown)}")
+    return {key: values[key] for key in WORLD_STATE}
+
+
+def check_state(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int, what: str,
+                keys: tuple[str, ...] = STATE_KEYS) -> None:
+    """Raise a ``ValueError`` naming the key unless every ``keys`` entry of ``state`` is a tensor
+    of the declared shape (for ``batch`` worlds) and dtype."""
+    shapes = state_shapes(cfg, batch)
+    for key in keys:
+        value, dtype = state.get(key, None), WORLD_STATE[key].dtype
+        if not isinstance(value, torch.Tensor):
+            raise ValueError(f"{what}: {key!r} should be a {dtype} tensor of shape {list(shapes[key])}, got "
+                             f"{type(value).__name__}")
+        if tuple(value.shape) != shapes[key]:
+            raise ValueError(f"{what}: {key!r} has shape {list(value.shape)}, expected {list(shapes[key])}")
+        if value.dtype != dtype:
+            raise ValueError(f"{what}: {key!r} has dtype {value.dtype}, expected {dtype}")
+
+
+__all__ = ["STATE_KEYS", "StateField", "WORLD_STATE", "check_state", "empty_state", "state_shapes", "world_state"]
