@@ -47,6 +47,7 @@ from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_c
 from ..policies.learners import make_learner
 from ..world.env import FlockingEnv
 from ..world.metrics import CELL_METRICS
+from ..world.sensors import observation_size, state_size
 from ..world.spawn import check_spawn_feasible
 from .run_folder import (EpisodeLog, RunLock, clean_stale_temporaries, logger_hparams, make_logger, resume_command,
                          truncate_scalar_logs, write_run_config)
@@ -133,7 +134,7 @@ def memory_estimate(cfg: TrainConfig) -> dict[str, int]:
     """Bytes the run will hold, by part: the replay buffer (swarm transitions of every key the
     learner stores) and the worlds (the env state and one step's pairwise ``[B, N, N]`` terms)."""
     s, n, b = cfg.scenario, cfg.scenario.n_uavs, cfg.experiment.num_envs
-    obs, state = 2 + 2 * s.n_scan + 3 * s.n_cam, 5 + 2 * s.n_scan + 3 * s.n_cam
+    obs, state = observation_size(s), state_size(s)
     per_uav = 4 * (2 * (obs + state) + 2 + 1 + 1 + 2 + 2)          # float32 obs/state twice, action, ...
     parts = {}
     if cfg.algo.name in ("sac", "ddpg"):
@@ -179,7 +180,7 @@ def checkpoint_meta(cfg: TrainConfig, env: FlockingEnv) -> dict[str, Any]:
         "scenario": scenario, "policy_scenario": {k: scenario[k] for k in POLICY_SCENARIO_FIELDS},
         "n_agents": cfg.scenario.n_uavs, "algo": cfg.algo.name, "critic_input": cfg.policy.critic_input,
         "stochastic": cfg.algo.name != "ddpg", "hidden": cfg.algo.hidden, "depth": cfg.algo.depth,
-        "obs_dim": int(env.observation_spec["agents", "observation"].shape[-1]), "seed": cfg.seed,
+        "obs_dim": observation_size(cfg.scenario), "seed": cfg.seed,
         "experiment": cfg.experiment.name,
     }
 
