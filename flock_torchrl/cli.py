@@ -406,8 +406,8 @@ def main(app: str) -> Any:
         _early_signals()
         return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
     except Stopped as stop:
-        print(f"stopped by {stop}: nothing is written before training starts; a checkpoint, if any, is kept",
-              file=sys.stderr, flush=True)
+        print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "
+              "written whole or not at all, and the last checkpoint, if any, is kept", file=sys.stderr, flush=True)
         raise SystemExit(128 + stop.signum) from None
 
 

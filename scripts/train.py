@@ -6,8 +6,20 @@
     python scripts/train.py policy=policy3_g --cfg job                    # print what would run
 """
 
+import signal
+import sys
 
-from flock_torchrl.cli import train_main
+
+def _stopped_early(signum, frame):
+    # A stop signal while Python loads torch and the package (seconds): nothing is written yet.
+    print(f"stopped by {signal.Signals(signum).name} while starting: nothing was written", file=sys.stderr,
+          flush=True)
+    raise SystemExit(128 + signum)
+
 
 if __name__ == "__main__":
+    for _signum in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", signal.SIGTERM)):
+        signal.signal(_signum, _stopped_early)
+    from flock_torchrl.cli import train_main
+
     train_main()

@@ -20,6 +20,7 @@ import hashlib
 import io
 import os
 import pickle
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -74,9 +75,15 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     if path.stat().st_size == 0:
         raise CheckpointError(f"{path} is empty (0 bytes): not a checkpoint (a copy or a write that did not finish?)")
     try:
-        envelope = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about foreign pickle protocols; the error says it all
+            warnings.simplefilter("ignore")
+            envelope = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
         # torch's own message suggests weights_only=False: never do that with a file you did not write.
+        with path.open("rb") as handle:
+            head = handle.read(4)
+        if not (head.startswith(b"PK\x03\x04") or head[:1] == b"\x80"):  # neither a torch zip nor a pickle
+            raise CheckpointError(f"{path} is not a readable checkpoint (not a torch file)") from None
         raise CheckpointError(f"{path} is not a {FORMAT} checkpoint: it holds Python objects a checkpoint "
                               "never contains, so it was not opened (opening it could run code)") from None
     except (RuntimeError, EOFError, ValueError, OSError, KeyError, AttributeError, TypeError, IndexError,
