@@ -14,8 +14,9 @@ over the obstacles, never over worlds), each centre drawn uniformly where the ob
 region and redrawn in the worlds where it conflicts, for at most ``spawn_max_tries`` rounds. A
 world where some obstacle is still not placed then takes its whole field from a fixed grid of
 cells (:func:`cell_boxes`), each large enough for the largest obstacle plus the clearance:
-distinct cells keep their obstacles ``random_clearance`` apart by construction, so only cells
-clear of the start disc, the goal and the other obstacles need choosing. :func:`check_forest`
+distinct cells keep their obstacles ``random_clearance`` apart by construction (each obstacle
+stays half the clearance inside its cell), so only cells half the clearance from the start disc,
+the goal and the other obstacles need choosing. :func:`check_forest`
 counts those cells, when the config is built, for every swarm centre Eq. 30 can draw (and the
 moving circles' worst case), and refuses a field the grid cannot always hold, naming the key; an
 accepted config never fails mid-run and the sampler never hangs.
@@ -191,10 +192,13 @@ def cell_boxes(cfg: ScenarioConfig, dtype=torch.float32, device=None) -> torch.T
 
 
 def free_cells(cfg: ScenarioConfig, cells: torch.Tensor, fixed: torch.Tensor) -> torch.Tensor:
-    """``[B, G]``: cell ``g`` lies at least ``random_clearance`` from every one of ``fixed [B, P, 5]``."""
+    """``[B, G]``: cell ``g`` lies at least ``random_clearance / 2`` from every one of ``fixed
+    [B, P, 5]``. An obstacle keeps ``random_clearance / 2`` from its cell's edges, and a box
+    shrunk by ``h`` on every side is at least ``h`` farther from anything outside it, so the
+    obstacle then keeps the whole clearance."""
     if not fixed.shape[1]:
         return torch.ones(fixed.shape[0], cells.shape[0], dtype=torch.bool, device=cells.device)
-    return (box_gap(cells[None, :, None], fixed[:, None]) >= cfg.random_clearance).all(-1)
+    return (box_gap(cells[None, :, None], fixed[:, None]) >= cfg.random_clearance / 2).all(-1)
 
 
 def place_on_cells(cfg: ScenarioConfig, shapes: torch.Tensor, fixed: torch.Tensor, generator: torch.Generator
@@ -202,7 +206,7 @@ def place_on_cells(cfg: ScenarioConfig, shapes: torch.Tensor, fixed: torch.Tenso
     """Centres for ``shapes [W, M, 5]`` on the fallback's grid: ``M`` distinct free cells
     (:func:`free_cells`) drawn uniformly without replacement, each obstacle uniformly inside its
     cell and ``random_clearance / 2`` from the cell's edges, so obstacles in distinct cells are
-    ``random_clearance`` apart and every obstacle is as clear of ``fixed`` as its cell.
+    ``random_clearance`` apart and ``random_clearance`` from ``fixed``.
 
     Returns ``[W, M, 5]``; raises :class:`~.spawn.SpawnError` where fewer than ``M`` cells are free
     (only possible for a config :func:`check_forest` refused)."""
@@ -243,15 +247,26 @@ def sample_forest(cfg: ScenarioConfig, swarm_centre: torch.Tensor, goal: torch.T
 
 
 # ---------------------------------------------------------------------------- config-time check
-def cells_near_a_moving_circle(cfg: ScenarioConfig) -> int:
+def cells_near_a_moving_circle(cfg: ScenarioConfig, steps: int = 32) -> int:
     """The most cells one moving circle can take from the fallback: those closer than
-    ``moving_radius + random_clearance`` to its centre (an open interval of length ``2 D``
-    meets at most ``ceil(2 D / width) + 1`` cells of a row)."""
+    ``moving_radius + random_clearance / 2`` to its centre (:func:`free_cells`). The grid repeats cell by cell, so the
+    centre is tried at ``steps x steps`` points of one cell, each reach grown by the half
+    diagonal of the points' spacing (so that every centre between them is covered)."""
     columns, rows, width, height = cell_grid(cfg)
     if not columns:
         return 0
-    reach = 2 * (cfg.moving_radius + cfg.random_clearance)
-    return min((math.ceil(reach / width) + 1) * (math.ceil(reach / height) + 1), columns * rows)
+    reach = cfg.moving_radius + cfg.random_clearance / 2 + math.hypot(width, height) / (2 * steps)
+    kx, ky = math.ceil(reach / width) + 1, math.ceil(reach / height) + 1
+    fraction = (torch.arange(steps, dtype=torch.float64) + 0.5) / steps
+    px, py = torch.meshgrid(fraction * width, fraction * height, indexing="ij")
+    points = point_boxes(torch.stack((px, py), -1).reshape(-1, 2), 0.0)                 # [S, 5]
+    i, j = torch.meshgrid(torch.arange(-kx, kx + 1, dtype=torch.float64),
+                          torch.arange(-ky, ky + 1, dtype=torch.float64), indexing="ij")
+    centres = torch.stack(((i + 0.5) * width, (j + 0.5) * height), -1).reshape(-1, 2)
+    cells = torch.cat((centres, torch.tensor([width / 2, height / 2, 0.0], dtype=torch.float64).expand(
+        centres.shape[0], 3)), -1)                                                       # [G, 5]
+    near = (box_gap(points[:, None], cells[None]) < reach).sum(-1)                       # [S]
+    return min(int(near.max()), columns * rows)
 
 
 def check_forest(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, pad: float) -> None:
