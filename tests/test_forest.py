@@ -35,7 +35,8 @@ def gaps(circles: torch.Tensor, rectangles: torch.Tensor) -> torch.Tensor:
     c, r = circles[:, :, None], circles[:, None]                                       # pairs [B, C, C, 3]
     cc = torch.hypot(c[..., 0] - r[..., 0], c[..., 1] - r[..., 1]) - c[..., 2] - r[..., 2]
     cc = cc + torch.eye(circles.shape[1]) * 1e9
-    cr = point_to_rectangle(circles[:, :, None, 0], circles[:, :, None, 1], rectangles[:, None]) - circles[:, :, None, 2]
+    cx, cy, radius = circles[:, :, None, 0], circles[:, :, None, 1], circles[:, :, None, 2]
+    cr = point_to_rectangle(cx, cy, rectangles[:, None]) - radius
     a, b = rectangles[:, :, None], rectangles[:, None]
     a, b = torch.broadcast_tensors(a, b)                                               # [B, R, R, 4]
     grown = torch.cat((b[..., :2], b[..., 2:] + a[..., 2:]), -1)
@@ -69,8 +70,9 @@ def check_field(env: FlockingEnv) -> None:
     low, high = cfg.random_rectangle_size
     assert ((rectangles[..., 2:] >= low - eps) & (rectangles[..., 2:] <= high + eps)).all()
     # Wholly inside the region: centre +- radius, centre +- half side.
-    assert (circles[..., 0] - circles[..., 2] >= x0 - eps).all() and (circles[..., 0] + circles[..., 2] <= x1 + eps).all()
-    assert (circles[..., 1] - circles[..., 2] >= y0 - eps).all() and (circles[..., 1] + circles[..., 2] <= y1 + eps).all()
+    x, y, r = circles[..., 0], circles[..., 1], circles[..., 2]
+    assert (x - r >= x0 - eps).all() and (x + r <= x1 + eps).all()
+    assert (y - r >= y0 - eps).all() and (y + r <= y1 + eps).all()
     assert (rectangles[..., 0] - rectangles[..., 2] / 2 >= x0 - eps).all()
     assert (rectangles[..., 0] + rectangles[..., 2] / 2 <= x1 + eps).all()
     assert (rectangles[..., 1] - rectangles[..., 3] / 2 >= y0 - eps).all()

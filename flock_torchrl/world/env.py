@@ -238,7 +238,8 @@ class FlockingEnv(EnvBase):
         """The ``"obstacles"`` entries of the ``"physics"`` extras: the moving circles' centres
         and the drawn obstacles, each only where the scenario has them."""
         cfg, world = self.cfg, self.world
-        entries = {"position": ("moving_position", cfg.n_moving), "drawn_circles": ("drawn_circles", cfg.random_circles),
+        entries = {"position": ("moving_position", cfg.n_moving),
+                   "drawn_circles": ("drawn_circles", cfg.random_circles),
                    "drawn_rectangles": ("drawn_rectangles", cfg.random_rectangles)}
         return {name: world[key] for name, (key, count) in entries.items() if count}
 

@@ -37,6 +37,9 @@ from ..config import ConfigError, ScenarioConfig
 from .geometry import Obstacles
 
 BOX = 5  # cx, cy, half_x, half_y, rounding
+# Metres every blocker grows by in the config-time check (computed in float64), against the
+# float32 round-off of the sampler's own test.
+_ROUND_OFF = 1e-3
 
 
 def drawn_count(cfg: ScenarioConfig) -> int:
@@ -249,9 +252,10 @@ def sample_forest(cfg: ScenarioConfig, swarm_centre: torch.Tensor, goal: torch.T
 # ---------------------------------------------------------------------------- config-time check
 def cells_near_a_moving_circle(cfg: ScenarioConfig, steps: int = 32) -> int:
     """The most cells one moving circle can take from the fallback: those closer than
-    ``moving_radius + random_clearance / 2`` to its centre (:func:`free_cells`). The grid repeats cell by cell, so the
-    centre is tried at ``steps x steps`` points of one cell, each reach grown by the half
-    diagonal of the points' spacing (so that every centre between them is covered)."""
+    ``moving_radius + random_clearance / 2`` to its centre (:func:`free_cells`). The grid
+    repeats cell by cell, so the centre is tried at ``steps x steps`` points of one cell (of an
+    unbounded grid: an upper bound), each reach grown by half the diagonal of the points'
+    spacing, so that every centre between them is covered."""
     columns, rows, width, height = cell_grid(cfg)
     if not columns:
         return 0
@@ -273,15 +277,17 @@ def check_forest(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, p
     """Refuse (:class:`~flock_torchrl.config.ConfigError`) a field the fallback grid cannot
     always hold: for every swarm centre ``centre [A, 2]`` (the goal mirrored through
     ``area_center``; both grown by ``pad``, the distance to the nearest centre that is not on
-    the list), the cells clear of the spawn disc, the goal and the fixed obstacles, less what
-    the moving circles can take in the worst case, must number at least the drawn obstacles.
-    Rejection sampling needs no check: a world it cannot place takes the grid."""
+    the list), the cells half the clearance from the spawn disc, the goal and the fixed
+    obstacles (:func:`free_cells`), less what the moving circles can take in the worst case
+    (:func:`cells_near_a_moving_circle`), must number at least the drawn obstacles. Rejection
+    sampling needs no check: a world it cannot place takes the grid."""
     m = drawn_count(cfg)
     if not m:
         return
     area = torch.tensor(cfg.area_center, dtype=centre.dtype)
     goal = 2 * area - centre
     fixed = blockers(cfg, centre, goal, static, centre.new_zeros(centre.shape[0], 0, 2), pad)
+    fixed[..., 4] += _ROUND_OFF  # the sampler decides in float32: a cell the check frees by less stays out
     room = free_cells(cfg, cell_boxes(cfg, centre.dtype), fixed).sum(-1)               # [A]
     room = room - cfg.n_moving * cells_near_a_moving_circle(cfg)
     worst = int(room.argmin())

@@ -357,7 +357,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     new = world_state(
         position=_batch_first(torch.stack((px, py), -1)), velocity=_batch_first(torch.stack((vx, vy), -1)),
         heading=_batch_first(h), goal=state["goal"], moving_position=moving_position, moving_velocity=moving_velocity,
-        drawn_circles=state["drawn_circles"], drawn_rectangles=state["drawn_rectangles"], command=_batch_first(torch.stack((cx, cy), -1)), instinct=_batch_first(use), prev_action=action,
+        drawn_circles=state["drawn_circles"], drawn_rectangles=state["drawn_rectangles"],
+        command=_batch_first(torch.stack((cx, cy), -1)), instinct=_batch_first(use), prev_action=action,
         has_prev_action=torch.ones_like(has_prev), terminated=terminated[:, None],
         truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, _sensed_batch_first(now), episode, _batch_first(reward)
