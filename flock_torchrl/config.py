@@ -309,6 +309,15 @@ class ScenarioConfig(Schema):
     moving_speed: float = MISSING
     moving_clearance: float = MISSING
     moving_box: List[float] = MISSING
+    # --- obstacles drawn per episode (the forest; docs/specification.md section 6, decision).
+    # Unlike every other field these have defaults, meaning "none": a checkpoint or saved scenario
+    # written before they existed still builds. conf/scenario/train.yaml states the same values.
+    random_circles: int = 0                  # how many circles each episode draws
+    random_circle_radius: List[float] = field(default_factory=lambda: [1.5, 4.0])  # [min, max] radius
+    random_rectangles: int = 0               # how many axis-aligned rectangles each episode draws
+    random_rectangle_size: List[float] = field(default_factory=lambda: [3.0, 8.0])  # [min, max] of each side
+    random_region: List[float] = field(default_factory=lambda: [10.0, 10.0, 70.0, 70.0])  # [x0, y0, x1, y1]
+    random_clearance: float = 4.0            # m between drawn obstacles, and from starts, goal, other obstacles
     # --- observation noise (S4)
     noise: bool = MISSING
     noise_scan: float = MISSING
@@ -328,6 +337,13 @@ class ScenarioConfig(Schema):
         if not self.spawn_radius_shrinks:
             scale = max(scale, 1.0)
         return self.spawn_radius * math.sqrt(scale)
+
+    @property
+    def n_obstacles(self) -> int:
+        """Obstacles in every world, the laser's indices: fixed, moving and drawn circles, then
+        fixed and drawn rectangles."""
+        return (len(self.circles) + self.n_moving + self.random_circles + len(self.rectangles)
+                + self.random_rectangles)
 
     def check(self, prefix: str | None = None) -> "ScenarioConfig":
         """Every field's range; whether the starts can always be placed is the world's question
@@ -387,7 +403,32 @@ class ScenarioConfig(Schema):
             positive(k("moving_radius"), self.moving_radius, 1e6)
             if len(self.moving_box) != 2 or not self.moving_box[0] < self.moving_box[1]:
                 _fail(k("moving_box"), f"must be [low, high] with low < high, got {list(self.moving_box)}")
+        self._check_random_obstacles(k)
         return self._mark_checked()
+
+    def _check_random_obstacles(self, k: Any) -> None:
+        """The drawn obstacles' fields (always, so a typo shows before a count makes it matter);
+        whether they can always be placed is :func:`flock_torchrl.world.forest.check_forest_feasible`."""
+        for name in ("random_circles", "random_rectangles"):
+            count(k(name), getattr(self, name), 0, 1000)
+        for name in ("random_circle_radius", "random_rectangle_size"):
+            low_high = list(getattr(self, name))
+            if not (len(low_high) == 2 and all(_is_number(v) and 0 < v <= 1e6 for v in low_high)
+                    and low_high[0] <= low_high[1]):
+                _fail(k(name), f"must be [min, max] with 0 < min <= max <= 1e6 (m), got {low_high}")
+        region = list(self.random_region)
+        if not (len(region) == 4 and all(_is_number(v) and abs(v) <= 1e6 for v in region)
+                and region[0] < region[2] and region[1] < region[3]):
+            _fail(k("random_region"), f"must be [x0, y0, x1, y1] with x0 < x1, y0 < y1, inside [-1e6, 1e6]^2 (m), "
+                                      f"got {region}")
+        non_negative(k("random_clearance"), self.random_clearance, 1e6)
+        width, height = region[2] - region[0], region[3] - region[1]
+        if self.random_circles and 2 * self.random_circle_radius[1] > min(width, height):
+            _fail(k("random_region"), f"{width:g} m x {height:g} m cannot hold a circle of radius "
+                                      f"{self.random_circle_radius[1]:g} m (random_circle_radius)")
+        if self.random_rectangles and self.random_rectangle_size[1] > min(width, height):
+            _fail(k("random_region"), f"{width:g} m x {height:g} m cannot hold a rectangle side of "
+                                      f"{self.random_rectangle_size[1]:g} m (random_rectangle_size)")
 
 
 def _rect_rect_overlap(a: Sequence[float], b: Sequence[float]) -> bool:

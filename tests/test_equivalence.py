@@ -83,12 +83,37 @@ def test_compiled_step_matches_its_eager_twin(reference, name):
             assert close(b[key], a[key], key), (name, key, (b[key].double() - a[key].double()).abs().max())
 
 
+def test_compiled_forest_matches_its_eager_twin():
+    # The forest (obstacles drawn per episode, per world) has no recorded reference: the compiled
+    # step must match its eager twin along 30 steps of seeded random actions, with episodes of 12
+    # steps (or fewer: crashes), so worlds are reset and draw new fields mid-rollout in both.
+    actions = torch.rand(30, 4, 5, 2, generator=torch.Generator().manual_seed(3)) * 2 - 1
+    runs = []
+    for compile_step in (False, True):
+        env = FlockingEnv("forest", num_envs=4, seed=7, reading="literal", policy_id="policy3_g", extras="all",
+                          max_steps=12, compile_step=compile_step)
+        td, steps = env.reset(), []
+        for action in actions:
+            td.set(("agents", "action"), action)
+            out, td = env.step_and_maybe_reset(td)
+            steps.append(out["next"])
+        runs.append(steps)
+    assert any(bool(td["done"].any()) for td in runs[0])  # some world did start a new field
+    for a, b in zip(*runs):
+        assert torch.equal(a["obstacles", "drawn_circles"], b["obstacles", "drawn_circles"])
+        assert torch.equal(a["obstacles", "drawn_rectangles"], b["obstacles", "drawn_rectangles"])
+        for key in KEYS:
+            assert close(b[key], a[key], key), ("forest", key, (b[key].double() - a[key].double()).abs().max())
+
+
 # The compiled step runs as world/lanes.py (worlds innermost); run eagerly, its sense and advance
 # must give what step.sense and step.advance give, key by key, along random rollouts and in the
-# corner cases (one UAV, fewer UAVs than camera slots, no obstacles, moving obstacles, S4 noise).
+# corner cases (one UAV, fewer UAVs than camera slots, no obstacles, moving obstacles, S4 noise,
+# obstacles drawn per world).
 LANES_CASES = [("train", "policy3_g", {}), ("s1", "policy3_g", {"n_uavs": 1}), ("s1", "policy1", {"n_uavs": 2}),
                ("s2", "policy5_g", {}), ("s3", "policy4_g", {}), ("s4", "policy3_g", {}), ("s5", "policy1", {}),
-               ("train", "policy3_g", {"n_uavs": 20, "reading": "paper_fit"})]
+               ("train", "policy3_g", {"n_uavs": 20, "reading": "paper_fit"}), ("forest", "policy3_g", {}),
+               ("forest", "policy4_g", {"n_moving": 2})]
 
 
 def same_values(a: dict, b: dict, atol: float = 1e-4) -> None:

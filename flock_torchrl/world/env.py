@@ -17,14 +17,14 @@ from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
 from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout
-from .state import STATE_KEYS, check_state, empty_state
-from .step import noise_draws, sense, transition
+from .state import STATE_KEYS, check_state, empty_state, fill_absent
+from .step import noise_draws, sense, transition, world_obstacles
 
 ACTION = ("agents", "action")
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
 EXTRAS = {
     "physics": (("agents", "position"), ("agents", "velocity"), ("agents", "heading"), "goal",
-                ("obstacles", "position")),
+                ("obstacles", "position"), ("obstacles", "drawn_circles"), ("obstacles", "drawn_rectangles")),
     "command": (("agents", "command"), ("agents", "instinct")),
     "laser": (("agents", "scan"), ("agents", "scan_obstacle")),
 }
@@ -38,7 +38,8 @@ class FlockingEnv(EnvBase):
     ``terminated`` and ``truncated`` are shared by the swarm, ``[B, 1]`` at the root, and
     ``"episode"`` holds the running section 5 metrics of each world (final when ``done``).
     More keys on request (``extras``): ``"physics"`` (``position``, ``velocity``,
-    ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``), ``"command"``
+    ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``, the episode's drawn
+    obstacles ``("obstacles", "drawn_circles")`` and ``("obstacles", "drawn_rectangles")``), ``"command"``
     (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
     ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``; with ``compile_step`` both
     are strided views, the compiled step storing beams outermost).
@@ -49,12 +50,12 @@ class FlockingEnv(EnvBase):
     ``rollout`` do, through ``step_and_maybe_reset``).
 
     Args:
-        scenario: a name under ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``),
+        scenario: a name under ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``),
             composed with ``reading`` and ``policy`` by Hydra; or a complete scenario
             (:class:`~flock_torchrl.config.ScenarioConfig`, mapping or DictConfig).
         num_envs: batch size ``B``.
         device: torch device of every tensor.
-        seed: seed of the env's own generator (spawns, S4 noise, moving obstacles).
+        seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles).
         reading: ``literal`` or ``paper_fit`` (docs/specification.md section 9).
         policy_id: a policy (``policy3_g`` ...) whose sensing, instinct and reward apply (TorchRL
             reserves the keyword ``policy``).
@@ -146,7 +147,7 @@ class FlockingEnv(EnvBase):
             agents.update(command=box(2, low=-cfg.v_max, high=cfg.v_max), instinct=flag())
         if "laser" in self.extras:
             agents.update(scan=box(cfg.n_beams, low=0.0, high=cfg.laser_range),
-                          scan_obstacle=Bounded(low=-1, high=max(self._static.count + cfg.n_moving - 1, 0),
+                          scan_obstacle=Bounded(low=-1, high=max(cfg.n_obstacles - 1, 0),
                                                 shape=(b, n, cfg.n_beams), dtype=torch.int64, device=dev))
         episode = Composite(
             {k: (flag(batch=(b,)) if k in FLAG_METRICS else free(batch=(b,), dtype=torch.int64) if k == "steps"
@@ -156,9 +157,15 @@ class FlockingEnv(EnvBase):
                                 device=dev)
         if "physics" in self.extras:
             observation["goal"] = free(2, batch=(b,))
+            obstacles = {}
             if cfg.n_moving:
-                observation["obstacles"] = Composite(position=free(cfg.n_moving, 2, batch=(b,)), shape=(b,),
-                                                     device=dev)
+                obstacles["position"] = free(cfg.n_moving, 2, batch=(b,))
+            if cfg.random_circles:
+                obstacles["drawn_circles"] = free(cfg.random_circles, 3, batch=(b,))
+            if cfg.random_rectangles:
+                obstacles["drawn_rectangles"] = free(cfg.random_rectangles, 4, batch=(b,))
+            if obstacles:
+                observation["obstacles"] = Composite(obstacles, shape=(b,), device=dev)
         self.observation_spec = observation
         action = box(2) if cfg.action_mode == "policy" else box(2, low=-cfg.v_max, high=cfg.v_max)
         self.action_spec = Composite(agents=Composite(action=action, shape=(b, n), device=dev), shape=(b,), device=dev)
@@ -188,7 +195,8 @@ class FlockingEnv(EnvBase):
         dev = self.device
         state = empty_state(self.cfg, count, dev)
         state.update(position=layout.position, heading=layout.heading, goal=layout.goal,
-                     moving_position=layout.moving_position, moving_velocity=layout.moving_velocity)
+                     moving_position=layout.moving_position, moving_velocity=layout.moving_velocity,
+                     drawn_circles=layout.drawn_circles, drawn_rectangles=layout.drawn_rectangles)
         sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, count, self._generator, dev))
         return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
                           batch_size=[count], device=dev)
@@ -221,9 +229,19 @@ class FlockingEnv(EnvBase):
         }
         if "physics" in extras:
             out["goal"] = world["goal"]
-            if self.cfg.n_moving:
-                out["obstacles"] = {"position": world["moving_position"]}
+            obstacles = self._obstacle_extras()
+            if obstacles:
+                out["obstacles"] = obstacles
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
+
+    def _obstacle_extras(self) -> dict[str, torch.Tensor]:
+        """The ``"obstacles"`` entries of the ``"physics"`` extras: the moving circles' centres
+        and the drawn obstacles, each only where the scenario has them."""
+        cfg, world = self.cfg, self.world
+        entries = {"position": ("moving_position", cfg.n_moving),
+                   "drawn_circles": ("drawn_circles", cfg.random_circles),
+                   "drawn_rectangles": ("drawn_rectangles", cfg.random_rectangles)}
+        return {name: world[key] for name, (key, count) in entries.items() if count}
 
     # ------------------------------------------------------------------ TorchRL API
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDict:
@@ -328,7 +346,7 @@ class FlockingEnv(EnvBase):
         world = state["world"] if isinstance(state, Mapping) and "world" in state else None
         if not isinstance(world, (Mapping, TensorDictBase)):
             raise ValueError("env state: expected a mapping with a 'world' entry (what get_state() returns)")
-        world = TensorDict(world, batch_size=[], device=self.device)
+        world = TensorDict(fill_absent(self.cfg, world, self.num_envs, self.device), batch_size=[], device=self.device)
         check_state(self.cfg, world, self.num_envs, "env state")
         for part in ("episode", "sensed"):  # the metrics accumulator and the sensing cache
             for key, value in reference[part].items(include_nested=True, leaves_only=True):
@@ -346,12 +364,13 @@ class FlockingEnv(EnvBase):
         self._restored = True
 
     def place(self, position: Any, heading: Any, goal: Any, velocity: Any = None,
-              moving_position: Any = None) -> TensorDict:
+              moving_position: Any = None, drawn_circles: Any = None, drawn_rectangles: Any = None) -> TensorDict:
         """Start an episode in every world from an exact physical state and return what
         ``reset`` would: ``position [B, N, 2]``, ``heading [B, N]``, ``goal [B, 2]``,
-        ``velocity [B, N, 2]`` (default 0), ``moving_position [B, K, 2]`` (S5; default: kept).
-        For tests, demos and scripted scenes; a wrong shape or a NaN / inf value is a
-        ``ValueError`` naming the argument."""
+        ``velocity [B, N, 2]`` (default 0), ``moving_position [B, K, 2]`` (S5; default: kept),
+        ``drawn_circles [B, C, 3]`` and ``drawn_rectangles [B, R, 4]`` (the forest; default:
+        kept). For tests, demos and scripted scenes; a wrong shape, a NaN / inf value or a drawn
+        obstacle of size <= 0 is a ``ValueError`` naming the argument."""
         def tensor(x: Any) -> torch.Tensor:
             return torch.as_tensor(x, dtype=torch.float32, device=self.device)
 
@@ -359,15 +378,20 @@ class FlockingEnv(EnvBase):
             self.world = self._fresh_worlds(self.num_envs)
             self._sensed_once = True
         given = {"position": position, "heading": heading, "goal": goal, "velocity": velocity,
-                 "moving_position": moving_position}
+                 "moving_position": moving_position, "drawn_circles": drawn_circles,
+                 "drawn_rectangles": drawn_rectangles}
         state = empty_state(self.cfg, self.num_envs, self.device)
-        state.update(moving_position=self.world["moving_position"], moving_velocity=self.world["moving_velocity"])
+        kept = ("moving_position", "moving_velocity", "drawn_circles", "drawn_rectangles")
+        state.update({key: self.world[key] for key in kept})
         state.update({key: tensor(value) for key, value in given.items() if value is not None})
         check_state(self.cfg, state, self.num_envs, "place", keys=tuple(given))
         for key, value in given.items():
             if value is not None and not bool(torch.isfinite(state[key]).all()):
                 raise ValueError(f"place: {key} contains NaN or inf; positions, headings, goals and velocities "
                                  "must be finite")
+        for key in ("drawn_circles", "drawn_rectangles"):
+            if given[key] is not None and not bool((state[key][..., 2:] > 0).all()):
+                raise ValueError(f"place: {key} has a size <= 0; radii, widths and heights must be positive")
         sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, self.num_envs, self._generator, self.device))
         self.world = TensorDict({**state, "episode": new_accumulator(self.num_envs, self.device), "sensed": sensed},
                                 batch_size=self.batch_size, device=self.device)
@@ -408,10 +432,9 @@ class FlockingEnv(EnvBase):
         return small
 
     def obstacles(self) -> Obstacles:
-        """Current obstacles of every world (static circles, moving circles, rectangles)."""
-        from .step import obstacles_of
-
-        return obstacles_of(self._static, self.world["moving_position"], self.cfg.moving_radius)
+        """Current obstacles of every world, in the laser's index order (fixed, moving and drawn
+        circles; fixed and drawn rectangles)."""
+        return world_obstacles(self.world, self._static, self.cfg)
 
     # ------------------------------------------------------------------ rendering
     def render(self, mode: str = "rgb_array", env_index: int = 0, agent_index_focus: int | None = None,

@@ -1,7 +1,7 @@
 """Drawing one instant of the world: the frame ``FlockingEnv.render`` returns.
 
 Matplotlib's object API on an Agg canvas (no pyplot, no display, no global state), so it runs
-headless and inside tests: static and moving obstacles (red), the goal circle (green, radius
+headless and inside tests: fixed, moving and drawn obstacles (red; each world's own), the goal circle (green, radius
 ``goal_radius``), UAVs as triangles along their heading (blue) and their camera fields of view
 (wedges of radius ``camera_range`` reaching ``half_fov`` either side of the heading). Whole
 episodes and the paper's figures are drawn by :mod:`flock_torchrl.report.figures`.
@@ -10,7 +10,7 @@ episodes and the paper's figures are drawn by :mod:`flock_torchrl.report.figures
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -31,12 +31,15 @@ DPI = 100
 @dataclass
 class WorldState:
     """One env at one instant, as numpy arrays: ``position [N, 2]``, ``heading [N]``,
-    ``goal [2]``, ``moving [K, 2]`` (moving circle centres, ``K = 0`` without them)."""
+    ``goal [2]``, ``moving [K, 2]`` (moving circle centres, ``K = 0`` without them), the
+    episode's drawn obstacles ``circles [C, 3]`` and ``rectangles [R, 4]`` (none by default)."""
 
     position: np.ndarray
     heading: np.ndarray
     goal: np.ndarray
     moving: np.ndarray
+    circles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    rectangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float32))
 
 
 def _np(x: torch.Tensor) -> np.ndarray:
@@ -47,7 +50,7 @@ def env_state(env: Any, env_index: int = 0) -> WorldState:
     """The current state of env ``env_index`` of a FlockingEnv."""
     world = env.world[env_index]
     return WorldState(_np(world["position"]), _np(world["heading"]), _np(world["goal"]),
-                      _np(world["moving_position"]))
+                      _np(world["moving_position"]), _np(world["drawn_circles"]), _np(world["drawn_rectangles"]))
 
 
 def rollout_states(rollout: Any, env_index: int = 0) -> list[WorldState]:
@@ -63,11 +66,16 @@ def rollout_states(rollout: Any, env_index: int = 0) -> list[WorldState]:
 
     position, heading = track(("agents", "position")), track(("agents", "heading"))
     goal = td["goal"][0]
-    if ("obstacles", "position") in td.keys(include_nested=True):
+    keys = td.keys(include_nested=True)
+    if ("obstacles", "position") in keys:
         moving = track(("obstacles", "position"))
     else:
         moving = torch.zeros(position.shape[0], 0, 2)
-    return [WorldState(_np(position[t]), _np(heading[t]), _np(goal), _np(moving[t])) for t in range(position.shape[0])]
+    # Drawn obstacles stay put for the episode: its first step's.
+    drawn = {name: _np(td["obstacles", f"drawn_{name}"][0]) for name in ("circles", "rectangles")
+             if ("obstacles", f"drawn_{name}") in keys}
+    return [WorldState(_np(position[t]), _np(heading[t]), _np(goal), _np(moving[t]), **drawn)
+            for t in range(position.shape[0])]
 
 
 def world_extent(cfg: Any, states: Sequence[WorldState], margin: float = 4.0) -> tuple[float, float, float, float]:
@@ -88,13 +96,18 @@ def world_extent(cfg: Any, states: Sequence[WorldState], margin: float = 4.0) ->
 
 
 # ---------------------------------------------------------------------------- drawing
-def draw_static(ax: Any, cfg: Any, goal: np.ndarray) -> None:
-    """Static circles and rectangles (red) and the goal circle (green)."""
-    for cx, cy, r in cfg.circles:
+def draw_obstacles(ax: Any, circles: Any, rectangles: Any) -> None:
+    """Circles ``[C, 3]`` (cx, cy, r) and axis-aligned rectangles ``[R, 4]`` (cx, cy, w, h), red."""
+    for cx, cy, r in np.asarray(circles, dtype=float).reshape(-1, 3):
         ax.add_patch(Circle((cx, cy), r, facecolor=OBSTACLE_COLOR, edgecolor="none", alpha=0.85, zorder=1))
-    for cx, cy, w, h in cfg.rectangles:
+    for cx, cy, w, h in np.asarray(rectangles, dtype=float).reshape(-1, 4):
         ax.add_patch(Rectangle((cx - w / 2, cy - h / 2), w, h, facecolor=OBSTACLE_COLOR, edgecolor="none",
                                alpha=0.85, zorder=1))
+
+
+def draw_static(ax: Any, cfg: Any, goal: np.ndarray) -> None:
+    """The scenario's fixed circles and rectangles (red) and the goal circle (green)."""
+    draw_obstacles(ax, cfg.circles, cfg.rectangles)
     ax.add_patch(Circle(tuple(goal), cfg.goal_radius, facecolor=GOAL_COLOR, edgecolor=GOAL_COLOR, alpha=0.5,
                         zorder=2))
     ax.add_patch(Circle(tuple(goal), cfg.goal_radius, fill=False, edgecolor=GOAL_COLOR, lw=1.5, zorder=2))
@@ -146,8 +159,10 @@ def style_axes(ax: Any, extent: tuple[float, float, float, float], title: str | 
 
 def draw_world(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float, float, float],
                show_fov: bool = True, title: str | None = None) -> None:
-    """One instant of the world into ``ax``: obstacles, goal, fields of view, UAVs."""
+    """One instant of the world into ``ax``: obstacles (the world's drawn ones too), goal, fields
+    of view, UAVs."""
     draw_static(ax, cfg, state.goal)
+    draw_obstacles(ax, state.circles, state.rectangles)
     if state.moving.size:
         draw_moving(ax, cfg, state.moving)
     if show_fov:

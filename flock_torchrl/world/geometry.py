@@ -47,8 +47,8 @@ class Obstacles:
     """Obstacles of a batch of worlds.
 
     Attributes:
-        circles: ``[B, C, 3]`` centre x, centre y, radius (static then moving ones).
-        rectangles: ``[B, R, 4]`` centre x, centre y, width along x, height along y.
+        circles: ``[B, C, 3]`` centre x, centre y, radius (fixed, then moving, then drawn ones).
+        rectangles: ``[B, R, 4]`` centre x, centre y, width along x, height along y (fixed, then drawn).
     """
 
     circles: torch.Tensor

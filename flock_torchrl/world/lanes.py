@@ -283,9 +283,9 @@ def _planar(x: torch.Tensor) -> torch.Tensor:
 def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig, normals: Tensors | None = None
           ) -> dict[str, torch.Tensor]:
     """:func:`~.step.sense`, computed with the worlds innermost; same keys, shapes and layout."""
-    from .step import obstacles_of  # step imports this module
+    from .step import world_obstacles  # step imports this module
 
-    obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
+    obstacles = world_obstacles(state, static, cfg)
     px, py = _planar(state["position"])
     return _sensed_batch_first(_sense(px, py, _planar(state["heading"]), state["goal"], obstacles, cfg, normals))
 
@@ -326,7 +326,9 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     if cfg.n_moving:
         moving_position, moving_velocity = reflect_in_box(
             moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
-    now = _sense(px, py, h, state["goal"], obstacles_of(static, moving_position, cfg.moving_radius), cfg, normals)
+    obstacles = obstacles_of(static, moving_position, cfg.moving_radius, state["drawn_circles"],
+                             state["drawn_rectangles"])
+    now = _sense(px, py, h, state["goal"], obstacles, cfg, normals)
 
     has_prev = state["has_prev_action"]
     prev_x, prev_y = (torch.where(has_prev, p, a) for p, a in zip(_planar(state["prev_action"]), (ax, ay)))
@@ -355,6 +357,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     new = world_state(
         position=_batch_first(torch.stack((px, py), -1)), velocity=_batch_first(torch.stack((vx, vy), -1)),
         heading=_batch_first(h), goal=state["goal"], moving_position=moving_position, moving_velocity=moving_velocity,
+        drawn_circles=state["drawn_circles"], drawn_rectangles=state["drawn_rectangles"],
         command=_batch_first(torch.stack((cx, cy), -1)), instinct=_batch_first(use), prev_action=action,
         has_prev_action=torch.ones_like(has_prev), terminated=terminated[:, None],
         truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])

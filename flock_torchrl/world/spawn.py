@@ -1,4 +1,5 @@
-"""Episode generator: swarm starts, goals (Eq. 30) and moving obstacles (S5), vectorised.
+"""Episode generator: swarm starts, goals (Eq. 30), moving obstacles (S5) and drawn obstacles
+(the forest, :mod:`.forest`), vectorised.
 
 Starts follow docs/specification.md sections 1 and 9: each UAV uniform in a disc around the
 swarm centre (radius :attr:`ScenarioConfig.swarm_spawn_radius`, which grows with the swarm
@@ -8,7 +9,9 @@ from obstacle surfaces. Rejection sampling redraws only the offending UAVs, for 
 one of 16 rotated, shifted hexagonal lattices of spacing ``spawn_separation`` (every pair is
 then far enough apart by construction). :func:`check_spawn_feasible` counts, at config time,
 the free points of those lattices for every swarm centre the scenario can draw, so an
-accepted config never fails to spawn mid-run.
+accepted config never fails to spawn mid-run. The drawn obstacles come last (after every
+draw a scenario without them makes) and keep their clearance from the spawn disc, the goal and
+the moving circles; :func:`.forest.check_forest` guarantees them at config time too.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from ..config import ConfigError, ScenarioConfig
+from .forest import check_forest, sample_forest
 from .geometry import Obstacles, distance_to_obstacles, pairwise
 
 # Angular resolution of the config-time check over swarm centres (Eq. 30's chi); the check
@@ -52,13 +56,16 @@ class SpawnError(RuntimeError):
 @dataclass
 class Layout:
     """Episode starts of ``B`` worlds: ``goal [B, 2]``, ``position [B, N, 2]``, ``heading [B, N]``,
-    moving circles ``moving_position [B, K, 2]`` and ``moving_velocity [B, K, 2]``."""
+    moving circles ``moving_position [B, K, 2]`` and ``moving_velocity [B, K, 2]``, drawn
+    obstacles ``drawn_circles [B, C, 3]`` and ``drawn_rectangles [B, R, 4]``."""
 
     goal: torch.Tensor
     position: torch.Tensor
     heading: torch.Tensor
     moving_position: torch.Tensor
     moving_velocity: torch.Tensor
+    drawn_circles: torch.Tensor
+    drawn_rectangles: torch.Tensor
 
 
 def _uniform(shape, generator, device, low=0.0, high=1.0):
@@ -237,7 +244,8 @@ def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator:
                 "(fields n_moving, moving_radius, moving_clearance, moving_box)")
         direction = _angle((batch, k), generator, device)
         moving_velocity = cfg.moving_speed * torch.stack((torch.cos(direction), torch.sin(direction)), -1)
-    return Layout(goal, position, heading, moving_position, moving_velocity)
+    drawn_circles, drawn_rectangles = sample_forest(cfg, swarm_centre, goal, static, moving_position, generator)
+    return Layout(goal, position, heading, moving_position, moving_velocity, drawn_circles, drawn_rectangles)
 
 
 def _moving_conflicts(centres: torch.Tensor, cfg: ScenarioConfig, static: Obstacles, uavs: torch.Tensor,
@@ -255,7 +263,9 @@ def _moving_conflicts(centres: torch.Tensor, cfg: ScenarioConfig, static: Obstac
 def _feasibility_key(cfg: ScenarioConfig) -> tuple:
     return (cfg.n_uavs, cfg.swarm_spawn_radius, cfg.spawn_separation, cfg.spawn_clearance, cfg.d_env,
             tuple(cfg.area_center), tuple(map(tuple, cfg.circles)), tuple(map(tuple, cfg.rectangles)),
-            cfg.n_moving, cfg.moving_radius, cfg.moving_clearance, tuple(cfg.moving_box))
+            cfg.n_moving, cfg.moving_radius, cfg.moving_clearance, tuple(cfg.moving_box), cfg.goal_radius,
+            cfg.random_circles, tuple(cfg.random_circle_radius), cfg.random_rectangles,
+            tuple(cfg.random_rectangle_size), tuple(cfg.random_region), cfg.random_clearance)
 
 
 def check_spawn_feasible(cfg: ScenarioConfig) -> None:
@@ -265,7 +275,8 @@ def check_spawn_feasible(cfg: ScenarioConfig) -> None:
     padded by half the grid's chord, so centres between grid points are covered too), one of
     the fallback's lattices (:func:`lattice_offsets`) must have at least ``n_uavs`` points in
     the spawn disc and clear of the obstacles. Moving circles (S5) need at least 20 % of their
-    start box free of the swarm's, the goal's and the static obstacles' exclusion zones.
+    start box free of the swarm's, the goal's and the static obstacles' exclusion zones. Drawn
+    obstacles must always fit the fallback grid of :func:`.forest.check_forest`.
     """
     key = _feasibility_key(cfg)
     if key not in _FEASIBLE:
@@ -304,6 +315,7 @@ def _check(cfg: ScenarioConfig) -> None:
             raise ConfigError("scenario.spawn_clearance", "the swarm centre can fall inside an obstacle's clearance")
     if cfg.n_moving:
         _check_moving(cfg, static, centre, chi, chord)
+    check_forest(cfg, static, centre, chord / 2)
 
 
 def _check_moving(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, chi: torch.Tensor,

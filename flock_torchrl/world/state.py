@@ -23,7 +23,8 @@ from ..config import ScenarioConfig
 @dataclass(frozen=True)
 class StateField:
     """One per-world tensor: ``shape`` per world, each entry an int or the name of a
-    :class:`~flock_torchrl.config.ScenarioConfig` field (``"n_uavs"``, ``"n_moving"``)."""
+    :class:`~flock_torchrl.config.ScenarioConfig` field (``"n_uavs"``, ``"n_moving"``,
+    ``"random_circles"``)."""
 
     shape: tuple[int | str, ...]
     dtype: torch.dtype
@@ -41,6 +42,10 @@ WORLD_STATE: dict[str, StateField] = {
     "goal": StateField((2,), torch.float32, "the swarm's goal p_g (m)"),
     "moving_position": StateField(("n_moving", 2), torch.float32, "centres of the moving circles (S5; m)"),
     "moving_velocity": StateField(("n_moving", 2), torch.float32, "velocities of the moving circles (m/s)"),
+    "drawn_circles": StateField(("random_circles", 3), torch.float32,
+                                "the episode's drawn circles, [cx, cy, radius] (the forest; m)"),
+    "drawn_rectangles": StateField(("random_rectangles", 4), torch.float32,
+                                   "the episode's drawn rectangles, [cx, cy, width, height] (m)"),
     "command": StateField(("n_uavs", 2), torch.float32, "the velocity command executed on the last step"),
     "instinct": StateField(("n_uavs",), torch.bool, "which UAVs flew the instinct's command on the last step"),
     "prev_action": StateField(("n_uavs", 2), torch.float32, "the last step's action (the smoothness reward's a_t-1)"),
@@ -71,6 +76,18 @@ def world_state(**values: torch.Tensor) -> dict[str, torch.Tensor]:
     return {key: values[key] for key in WORLD_STATE}
 
 
+def fill_absent(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int,
+                device: torch.device | str | None = None) -> dict[str, Any]:
+    """``state`` with every absent field that holds nothing in this scenario (a declared shape
+    with a zero, e.g. no drawn obstacles) added empty: a state saved before that field was
+    declared still restores. Other entries pass unchanged."""
+    out = dict(state)
+    for key, shape in state_shapes(cfg, batch).items():
+        if key not in out and 0 in shape:
+            out[key] = torch.zeros(shape, dtype=WORLD_STATE[key].dtype, device=device)
+    return out
+
+
 def check_state(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int, what: str,
                 keys: tuple[str, ...] = STATE_KEYS) -> None:
     """Raise a ``ValueError`` naming the key unless every ``keys`` entry of ``state`` is a tensor
@@ -87,4 +104,5 @@ def check_state(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int, what:
             raise ValueError(f"{what}: {key!r} has dtype {value.dtype}, expected {dtype}")
 
 
-__all__ = ["STATE_KEYS", "StateField", "WORLD_STATE", "check_state", "empty_state", "state_shapes", "world_state"]
+__all__ = ["STATE_KEYS", "StateField", "WORLD_STATE", "check_state", "empty_state", "fill_absent", "state_shapes",
+           "world_state"]

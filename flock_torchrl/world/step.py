@@ -33,15 +33,29 @@ from .state import world_state
 Tensors = Mapping[str, torch.Tensor]
 
 
-def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius: float) -> Obstacles:
-    """Static circles, then moving circles of ``moving_radius`` at ``moving_position [B, K, 2]``,
-    then rectangles, for every world."""
+def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius: float,
+                 drawn_circles: torch.Tensor, drawn_rectangles: torch.Tensor) -> Obstacles:
+    """Every world's obstacles, in the laser's index order: the fixed circles, the moving circles
+    of ``moving_radius`` at ``moving_position [B, K, 2]``, the episode's ``drawn_circles
+    [B, C, 3]``; then the fixed rectangles and the ``drawn_rectangles [B, R, 4]``."""
     b = moving_position.shape[0]
     circles = static.circles.expand(b, -1, -1)
     if moving_position.shape[1]:
         moving = torch.cat((moving_position, torch.full_like(moving_position[..., :1], moving_radius)), -1)
         circles = torch.cat((circles, moving), 1)
-    return Obstacles(circles, static.rectangles.expand(b, -1, -1))
+    if drawn_circles.shape[1]:
+        circles = torch.cat((circles, drawn_circles), 1)
+    rectangles = static.rectangles.expand(b, -1, -1)
+    if drawn_rectangles.shape[1]:
+        rectangles = torch.cat((rectangles, drawn_rectangles), 1)
+    return Obstacles(circles, rectangles)
+
+
+def world_obstacles(state: Tensors, static: Obstacles, cfg: ScenarioConfig) -> Obstacles:
+    """:func:`obstacles_of` the physical ``state`` (its ``moving_position``, ``drawn_circles``
+    and ``drawn_rectangles``)."""
+    return obstacles_of(static, state["moving_position"], cfg.moving_radius, state["drawn_circles"],
+                        state["drawn_rectangles"])
 
 
 def noise_draws(cfg: ScenarioConfig, n_worlds: int, generator: torch.Generator | None,
@@ -74,7 +88,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     if torch.compiler.is_compiling():
         return lanes.sense(state, static, cfg, normals)
     position, heading, goal = state["position"], state["heading"], state["goal"]
-    obstacles = obstacles_of(static, state["moving_position"], cfg.moving_radius)
+    obstacles = world_obstacles(state, static, cfg)
     beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range)
     # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
     true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
@@ -152,7 +166,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     if cfg.n_moving:
         moving_position, moving_velocity = reflect_in_box(
             moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
-    physical = {"position": position, "heading": heading, "goal": state["goal"], "moving_position": moving_position}
+    physical = {"position": position, "heading": heading, "goal": state["goal"], "moving_position": moving_position,
+                "drawn_circles": state["drawn_circles"], "drawn_rectangles": state["drawn_rectangles"]}
     now = sense(physical, static, cfg, normals)
     prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
     d_collision = now["d_scan1"]
@@ -174,7 +189,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     episode = update_episode(dict(episode), stats, reached, crashed, cfg.dt, reward.mean(-1))
     new = world_state(
         position=position, velocity=velocity, heading=heading, goal=state["goal"], moving_position=moving_position,
-        moving_velocity=moving_velocity, command=command, instinct=use, prev_action=action,
+        moving_velocity=moving_velocity, drawn_circles=state["drawn_circles"],
+        drawn_rectangles=state["drawn_rectangles"], command=command, instinct=use, prev_action=action,
         has_prev_action=torch.ones_like(state["has_prev_action"]), terminated=terminated[:, None],
         truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, now, episode, reward
