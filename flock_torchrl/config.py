@@ -309,15 +309,15 @@ class ScenarioConfig(Schema):
     moving_speed: float = MISSING
     moving_clearance: float = MISSING
     moving_box: List[float] = MISSING
-    # --- obstacles drawn per episode (the forest; docs/specification.md section 6, decision).
-    # Unlike every other field these have defaults, meaning "none": a checkpoint or saved scenario
-    # written before they existed still builds. conf/scenario/train.yaml states the same values.
-    random_circles: int = 0                  # how many circles each episode draws
-    random_circle_radius: List[float] = field(default_factory=lambda: [1.5, 4.0])  # [min, max] radius
-    random_rectangles: int = 0               # how many axis-aligned rectangles each episode draws
-    random_rectangle_size: List[float] = field(default_factory=lambda: [3.0, 8.0])  # [min, max] of each side
-    random_region: List[float] = field(default_factory=lambda: [10.0, 10.0, 70.0, 70.0])  # [x0, y0, x1, y1]
-    random_clearance: float = 4.0            # m between drawn obstacles, and from starts, goal, other obstacles
+    # --- obstacles drawn per episode (the forest; docs/specification.md section 6, decision). A
+    # scenario saved before these fields existed takes conf/scenario/train.yaml's ("none"):
+    # :func:`saved_scenario`.
+    random_circles: int = MISSING            # how many circles each episode draws
+    random_circle_radius: List[float] = MISSING   # [min, max] radius
+    random_rectangles: int = MISSING         # how many axis-aligned rectangles each episode draws
+    random_rectangle_size: List[float] = MISSING  # [min, max] of each side
+    random_region: List[float] = MISSING     # [x0, y0, x1, y1]
+    random_clearance: float = MISSING        # m between drawn obstacles, and from starts, goal, other obstacles
     # --- observation noise (S4)
     noise: bool = MISSING
     noise_scan: float = MISSING
@@ -1009,6 +1009,17 @@ def scenario_config(scenario: str | Mapping[str, Any] | DictConfig | ScenarioCon
     return ScenarioConfig.from_config(node)
 
 
+def saved_scenario(saved: Mapping[str, Any]) -> dict[str, Any]:
+    """A scenario a checkpoint or a run folder saved, as this version's fields: fields added
+    since (e.g. the drawn obstacles) take the training scenario's values of its reading
+    (conf/scenario/train.yaml), which mean "as it was"."""
+    missing = SCENARIO_FIELDS - set(saved)
+    if not missing:
+        return dict(saved)
+    base = compose_world("train", str(saved.get("reading", "paper_fit"))).scenario
+    return {**{k: OmegaConf.to_container(base, resolve=True)[k] for k in missing}, **dict(saved)}
+
+
 def plain(cfg: Any) -> Any:
     """A config as plain, resolved Python containers (for saving and logging)."""
     if isinstance(cfg, DictConfig):
@@ -1037,6 +1048,6 @@ __all__ = [
     "SCENARIO_FIELDS", "ScalingConfig", "ScenarioConfig", "Schema", "ShipConfig", "TrainConfig", "TuneConfig",
     "WorldApp",
     "algo_config", "available", "check_device", "check_seed", "compose", "compose_world", "config_dir",
-    "default_checkpoints_dir", "shipped_checkpoints_dir",
+    "default_checkpoints_dir", "saved_scenario", "shipped_checkpoints_dir",
     "config_error", "flatten", "plain", "run_name", "safe_name", "scenario_config",
 ]

@@ -116,12 +116,22 @@ LANES_CASES = [("train", "policy3_g", {}), ("s1", "policy3_g", {"n_uavs": 1}), (
                ("forest", "policy4_g", {"n_moving": 2})]
 
 
+# A beam that grazes a circle hits at -b - sqrt(b^2 - c): float32 round-off in b^2 - c (about
+# 1e-7 * 10^2 m^2 at the 10 m range) becomes up to sqrt(1e-5) ~ 3e-3 m in the hit distance,
+# whichever of two correct formulas computes it. Raw beam lengths (metres) get that margin; the
+# observation divides them by the 10 m range, so 1e-4 still covers it there.
+GRAZING_ATOL = {"scan": 3e-3}
+
+
 def same_values(a: dict, b: dict, atol: float = 1e-4) -> None:
     """Equal keys, shapes, dtypes; discrete values equal, floats within ``atol`` (the same
-    formulas, but sums over the swarm may add in another order). An angle at the wrap (+-pi,
-    or +-1 once divided by pi) may come out on either side: the same direction."""
+    formulas, but sums over the swarm may add in another order; raw beams within
+    ``GRAZING_ATOL``). An angle at the wrap (+-pi, or +-1 once divided by pi) may come out on
+    either side: the same direction."""
     assert a.keys() == b.keys()
+    base = atol
     for key in a:
+        atol = GRAZING_ATOL.get(key, base)
         x, y = a[key], b[key]
         assert x.shape == y.shape and x.dtype == y.dtype, key
         if x.dtype in (torch.bool, torch.long):
@@ -141,6 +151,7 @@ def test_lanes_step_matches_the_eager_step(scenario, policy, overrides):
     from flock_torchrl.world.step import advance, noise_draws, sense
 
     kwargs = {"reading": "literal", **overrides}
+    torch.manual_seed(0)  # rand_action draws from the global generator
     env = FlockingEnv(scenario, num_envs=16, seed=5, policy_id=policy, **kwargs)
     td = env.reset()
     for t in range(12):

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from flock_torchrl import FlockingEnv, load_policy, make_policy
-from flock_torchrl.config import ConfigError, scenario_config
+from flock_torchrl.config import ConfigError, default_checkpoints_dir, scenario_config
 
 FOREST = {"reading": "literal"}
 FAR = 500.0  # metres: where a test parks the drawn obstacles it does not want in the way
@@ -351,13 +351,14 @@ def test_drawn_obstacle_fields_are_checked_by_name(field, value, message):
 
 
 def test_a_scenario_saved_before_the_fields_still_builds():
-    # A checkpoint's scenario from before the forest lacks the random_* fields: their defaults mean none.
+    # A checkpoint's scenario from before the forest lacks the random_* fields: they take the
+    # training scenario's YAML values, which mean none.
     import dataclasses
 
-    from flock_torchrl.config import ScenarioConfig
+    from flock_torchrl.config import ScenarioConfig, saved_scenario
 
     saved = {k: v for k, v in dataclasses.asdict(scenario_config("train")).items() if not k.startswith("random_")}
-    cfg = ScenarioConfig(**saved).check()
+    cfg = ScenarioConfig(**saved_scenario(saved)).check()
     assert (cfg.random_circles, cfg.random_rectangles, cfg.n_obstacles) == (0, 0, 3)
 
 
@@ -370,8 +371,6 @@ def test_rule_based_baselines_fly_the_forest(name):
     assert td["next", "agents", "scan_obstacle"].max().item() <= env.cfg.n_obstacles - 1
 
 
-@pytest.mark.xfail(reason="policies/baselines/sensing.py obstacle_count does not count drawn obstacles yet "
-                          "(outside the world layer): use ScenarioConfig.n_obstacles there", strict=False)
 def test_rule_based_baselines_tell_drawn_obstacles_apart():
     from flock_torchrl.policies.baselines.sensing import obstacle_count
 
@@ -379,7 +378,7 @@ def test_rule_based_baselines_tell_drawn_obstacles_apart():
 
 
 def test_a_learned_checkpoint_flies_the_forest():
-    policy = load_policy("checkpoints/paper_fit/policy3_g/seed0.pt")
+    policy = load_policy(default_checkpoints_dir() / "paper_fit" / "policy3_g" / "seed0.pt")
     meta = policy.flock_meta
     env = FlockingEnv("forest", num_envs=4, seed=0, reading=meta["reading"], policy_id=meta["policy_id"])
     with torch.no_grad():

@@ -28,7 +28,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from ..config import ScenarioConfig
+from ..config import ScenarioConfig, saved_scenario
 from ..io import atomic_write
 from .models import ACTION, OBS, make_actor
 
@@ -151,7 +151,7 @@ class SharedPolicy(TensorDictModuleBase):
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
         self.flock_meta = meta
-        env = FlockingEnv(ScenarioConfig(**meta["scenario"]), num_envs=1, device=device, seed=None)
+        env = FlockingEnv(ScenarioConfig(**saved_scenario(meta["scenario"])), num_envs=1, device=device, seed=None)
         self.actor = make_actor(env, stochastic=meta["stochastic"], hidden=meta["hidden"], depth=meta["depth"])
         self.actor.load_state_dict(actor_state)
 

@@ -28,7 +28,7 @@ from ..policies.registry import shipped_checkpoints
 from ..config import EVAL_SEED
 from ..run.rollout import rollout_episode
 from ..run.trainer import EPISODE_COLUMNS
-from ..world.frame import (DPI, draw_moving, draw_static, draw_uavs, frame_image, image_size, rollout_states,
+from ..world.frame import (DPI, draw_moving, draw_obstacles, draw_static, draw_uavs, frame_image, image_size, rollout_states,
                            style_axes, world_extent)
 from .reference import PAPER_RECIPE_ROW, table_entries
 
@@ -67,6 +67,7 @@ def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | o
     else:
         fig = ax.figure
     draw_static(ax, cfg, states[0].goal)
+    draw_obstacles(ax, states[0].circles, states[0].rectangles)  # the episode's drawn obstacles (forest)
     times = sorted({int(round(t)) for t in np.linspace(0, len(states) - 1, max(2, n_snapshots))})
     if states[0].moving.size:
         for i, t in enumerate(times):

@@ -42,7 +42,7 @@ from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
 
-from ..config import POLICY_SCENARIO_FIELDS, ConfigError, TrainConfig, compose, flatten
+from ..config import POLICY_SCENARIO_FIELDS, ConfigError, TrainConfig, compose, flatten, saved_scenario
 from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint
 from ..policies.learners import make_learner
 from ..world.env import FlockingEnv
@@ -329,7 +329,9 @@ class _Training:
         if self.cfg.resume_mode == "never" or not self.ckpt_path.exists():
             return None
         payload = load_checkpoint(self.ckpt_path, kind="training")
-        diff = config_differences(payload["config"], self.resolved, self.cfg.resumable)
+        saved = dict(payload["config"])
+        saved["scenario"] = saved_scenario(saved["scenario"])  # fields added since it was written: as it was
+        diff = config_differences(saved, self.resolved, self.cfg.resumable)
         if diff:
             shown = "; ".join(f"{k}: {flatten(payload['config']).get(k, '<absent>')!r} there, "
                               f"{flatten(self.resolved).get(k, '<absent>')!r} here" for k in diff[:6])

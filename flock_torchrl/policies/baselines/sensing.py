@@ -118,8 +118,9 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
 
 
 def obstacle_count(env_cfg) -> int:
-    """Obstacles a scenario's laser can tell apart: static circles, moving circles, rectangles."""
-    return len(env_cfg.circles) + int(env_cfg.n_moving) + len(env_cfg.rectangles)
+    """Obstacles a scenario's laser can tell apart: fixed, moving and drawn circles, fixed and
+    drawn rectangles."""
+    return env_cfg.n_obstacles
 
 
 def cap_norm(vector: torch.Tensor, max_norm: float) -> torch.Tensor:
