@@ -104,8 +104,10 @@ def _run_train(cfg: TrainConfig, out: Path) -> float:
 
 # -- evaluate
 def _evaluate_handles(cfg: EvaluateConfig) -> list:
-    from .policies.registry import resolve
+    from .policies.registry import contender_handle, resolve
 
+    if cfg.contender is not None:
+        return [contender_handle(cfg.contender, cfg.device, key="contender")]
     handles = resolve(cfg.checkpoint or cfg.policy.id, cfg.scenario.reading, cfg.checkpoints_dir,
                       device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy)
     if cfg.checkpoint and handles[0].id != cfg.policy.id:
@@ -142,7 +144,8 @@ def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
 def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
 
-    check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only)
+    check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only,
+                       contenders=cfg.contenders)
 
 
 def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
@@ -151,7 +154,8 @@ def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     _set_threads(cfg.threads)
     result = reproduce(cfg.table, cfg.scenario.reading, episodes=cfg.episodes, seed=cfg.seed, device=cfg.device,
                        checkpoints_dir=cfg.checkpoints_dir, out_dir=out, only=list(cfg.only) or None,
-                       episodes_csv=cfg.episodes_csv, paper_recipe_dir=cfg.paper_recipe_dir, log=_say)
+                       episodes_csv=cfg.episodes_csv, paper_recipe_dir=cfg.paper_recipe_dir,
+                       contenders=cfg.contenders, log=_say)
     if result["failed"]:
         raise AppError(f"Table {cfg.table}: rows not evaluated: {', '.join(result['failed'])} (see above)")
 

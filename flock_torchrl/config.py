@@ -741,6 +741,7 @@ class EvaluateConfig(WorldApp):
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: Any = None
     checkpoint: Optional[str] = None         # a checkpoint file instead of the shipped ones
+    contender: Any = None                    # a controller of the user's instead (registry.contender_handle)
     episodes: int = MISSING
     seed: int = MISSING
     device: str = MISSING
@@ -749,12 +750,26 @@ class EvaluateConfig(WorldApp):
 
     def check(self, prefix: str | None = None) -> "EvaluateConfig":
         self.policy.check()
+        if self.checkpoint is not None and self.contender is not None:
+            _fail("contender", "evaluates one controller: give checkpoint= or contender=, not both")
+        _check_contender("contender", self.contender)
         if self.max_steps is not None:
             count("max_steps", self.max_steps, 1, 10**7)
             self.scenario = dataclasses.replace(self.scenario, max_steps=self.max_steps)
         self._check_world()
         _check_run(self)
         return self._mark_checked()
+
+
+def _check_contender(key: str, spec: Any) -> None:
+    """A contender's shape (a string, or a mapping with a string ``_target_``); whether it
+    imports or loads is the registry's check, made before the first episode."""
+    if spec is None or isinstance(spec, str) and spec:
+        return
+    if isinstance(spec, Mapping) and isinstance(spec.get("_target_"), str) and spec["_target_"]:
+        return
+    _fail(key, "a checkpoint path, a factory's import path (pkg.module.make or file.py:make) or a mapping with "
+               f"_target_; got {spec!r}")
 
 
 def _check_run(cfg: Any) -> None:
@@ -775,11 +790,14 @@ class ReproduceConfig(WorldApp):
     device: str = MISSING
     threads: int = MISSING
     only: List[str] = field(default_factory=list)
+    contenders: List[Any] = field(default_factory=list)  # the user's controllers, as extra rows
     episodes_csv: bool = MISSING
 
     def check(self, prefix: str | None = None) -> "ReproduceConfig":
         self._check_world()
         choice("table", self.table, (3, 4, 5))
+        for i, spec in enumerate(self.contenders):
+            _check_contender(f"contenders[{i}]", spec)
         _check_run(self)
         return self._mark_checked()
 

@@ -119,36 +119,82 @@ def module_handle(module: Any) -> PolicyHandle:
         build_for=lambda env: module)
 
 
-def contender_handle(spec: Any, device: str = "cpu") -> PolicyHandle:
+def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") -> PolicyHandle:
     """A controller of the user's, as a row beside the paper's policies: a checkpoint file, or a
     factory ``f(env, **kwargs)`` returning a TensorDict module, given by its import path
-    (``"mypkg.controllers.make"``) or as a mapping for Hydra's ``instantiate`` (``_target_``
-    plus its keyword arguments, and optionally ``name``, ``scenario`` — the policy scenario
-    fields it needs, e.g. ``{action_mode: velocity}`` — and ``extras``, the env keys it reads)."""
-    from hydra.utils import get_method, instantiate
+    (``"mypkg.controllers.make"``), by a Python file and a function in it
+    (``"examples/goal_separation.py:make"``), or as a mapping for Hydra's ``instantiate``
+    (``_target_`` — either form — plus its keyword arguments, and optionally ``name``,
+    ``scenario`` — the policy scenario fields it needs, e.g. ``{instinct: true}`` — and
+    ``extras``, the env keys it reads). Errors name ``key``, the setting that gave ``spec``."""
+    from hydra.utils import instantiate
     from omegaconf import DictConfig, OmegaConf
 
     if isinstance(spec, DictConfig):
         spec = OmegaConf.to_container(spec, resolve=True)
-    if isinstance(spec, (str, os.PathLike)) and _is_path(spec):
+    if isinstance(spec, (str, os.PathLike)) and not _is_file_target(str(spec)) and _is_path(spec):
         handle = checkpoint_handle(resolve_path(spec), device)
         handle.kind, handle.name = "contender", f"{handle.name} ({Path(spec).stem})"
         return handle
     options = {"_target_": str(spec)} if isinstance(spec, str) else dict(spec)
-    target = str(options.get("_target_", ""))
-    try:
-        get_method(target)
-    except Exception as exc:
-        raise ConfigError("contenders", f"cannot import the factory {target!r}: {exc}") from None
-    name = str(options.pop("name", target.rpartition(".")[2]))
+    if not isinstance(options.get("_target_"), str) or not options["_target_"]:
+        raise ConfigError(key, f"a checkpoint path, a factory's import path or a mapping with _target_; got {spec!r}")
+    target = options["_target_"]
+    factory = _factory(target, key)
+    del options["_target_"]
+    name = str(options.pop("name", _default_name(target)))
     scenario = dict(options.pop("scenario", {}) or {})
     unknown = sorted(set(scenario) - set(POLICY_SCENARIO_FIELDS))
     if unknown:
         raise ConfigError("contenders", f"{name}: scenario may set only {', '.join(POLICY_SCENARIO_FIELDS)}; "
                                         f"got {unknown}")
     extras = tuple(options.pop("extras", ()) or ())
+    # keyword arguments as given; a nested mapping with its own _target_ is built by Hydra
+    kwargs = {k: instantiate(v) if isinstance(v, Mapping) and "_target_" in v else v for k, v in options.items()}
     return PolicyHandle(id="contender", name=name, kind="contender", reading=None, scenario=scenario, extras=extras,
-                        origin=target, build_for=lambda env: instantiate(options, env=env))
+                        origin=target, build_for=lambda env: factory(env=env, **kwargs))
+
+
+def _default_name(target: str) -> str:
+    """A row's name when none is given: the function's, or its module's (file's) for ``make``."""
+    where, _, function = target.rpartition(":" if _is_file_target(target) else ".")
+    if function not in ("make", "build", "create", "factory"):
+        return function
+    return Path(where).stem if _is_file_target(target) else where.rpartition(".")[2] or function
+
+
+def _is_file_target(text: str) -> bool:
+    """``path/to/file.py:function``."""
+    return bool(re.fullmatch(r".+\.py:[A-Za-z_][A-Za-z0-9_]*", text))
+
+
+def _factory(target: str, key: str) -> Callable[..., Any]:
+    """The callable ``target`` names: ``pkg.module.function`` (importable from ``sys.path``)
+    or ``path/to/file.py:function`` (loaded from that file, relative to the working folder)."""
+    import importlib.util
+
+    from hydra.utils import get_method
+
+    if not _is_file_target(target):
+        try:
+            return get_method(target)
+        except Exception as exc:
+            raise ConfigError(key, f"cannot import the factory {target!r}: {exc} (an import path needs its package "
+                                   "on PYTHONPATH; a file can be given as path/to/file.py:function)") from None
+    file, _, function = target.rpartition(":")
+    path = Path(file).expanduser().resolve()
+    if not path.is_file():
+        raise ConfigError(key, f"{target}: no file {path}")
+    spec = importlib.util.spec_from_file_location(f"flock_contender_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:
+        raise ConfigError(key, f"{target}: loading {path} failed: {type(exc).__name__}: {exc}") from None
+    found = getattr(module, function, None)
+    if not callable(found):
+        raise ConfigError(key, f"{target}: {path.name} defines no function {function!r}")
+    return found
 
 
 def _is_path(policy: Any) -> bool:
