@@ -621,6 +621,10 @@ class ExperimentConfig(Schema):
     # Scenario fields changed for the *training* env only (a training recipe such as ending
     # an episode at UAV contact); evaluation runs the scenario as composed.
     train_env: Dict[str, Any] = field(default_factory=dict)
+    # Several swarm sizes trained at once, one shared policy (docs/specification.md section 7,
+    # a decision beyond the paper): the training worlds are split evenly between the sizes and
+    # the replay buffer holds single UAV transitions. Empty: the scenario's n_uavs only.
+    swarm_sizes: List[int] = field(default_factory=list)
 
     def check(self, prefix: str | None = None) -> "ExperimentConfig":
         p = self.prefix if prefix is None else prefix
@@ -640,6 +644,18 @@ class ExperimentConfig(Schema):
             _fail(_key(p, "train_env"), f"unknown scenario field(s) {unknown}")
         if self.workers > 1 and self.num_envs % self.workers:
             _fail(_key(p, "workers"), f"{self.workers} must divide num_envs={self.num_envs}")
+        if self.swarm_sizes:
+            key = _key(p, "swarm_sizes")
+            for i, n in enumerate(self.swarm_sizes):
+                count(f"{key}[{i}]", n, 1, 10**5)
+            if len(set(self.swarm_sizes)) != len(self.swarm_sizes):
+                _fail(key, f"sizes repeat: {list(self.swarm_sizes)}")
+            if self.num_envs % len(self.swarm_sizes):
+                _fail(key, f"{len(self.swarm_sizes)} sizes must divide num_envs={self.num_envs} (worlds per size)")
+            if self.workers > 1:
+                _fail(key, "trains in one process: set workers=1")
+            if "n_uavs" in self.train_env:
+                _fail(key, "and train_env.n_uavs both set the training swarm size; keep one")
         return self._mark_checked()
 
 
@@ -704,6 +720,9 @@ class TrainConfig(WorldApp):
             _fail("algo", f"policy {self.policy.id} selects no learner")
         self.algo = algo_config(self.algo)
         self.experiment.check()
+        if self.experiment.swarm_sizes and self.algo.name not in ("sac", "ddpg"):
+            _fail("experiment.swarm_sizes", f"needs an off-policy learner (sac, ddpg): {self.policy.id} trains "
+                                            f"with {self.algo.name}")
         self.logger.check()
         self.train_scenario  # noqa: B018 - the training env's scenario is checked too
         check_seed("seed", self.seed)
@@ -722,6 +741,12 @@ class TrainConfig(WorldApp):
             return dataclasses.replace(self.scenario, **dict(self.experiment.train_env)).check()
         except ConfigError as exc:
             raise ConfigError(f"experiment.train_env ({exc.key})", exc.message) from exc
+
+    @property
+    def train_scenarios(self) -> list[ScenarioConfig]:
+        """The training envs' scenarios: one per ``experiment.swarm_sizes`` entry (or one)."""
+        base = self.train_scenario
+        return [dataclasses.replace(base, n_uavs=n) for n in self.experiment.swarm_sizes] or [base]
 
     @property
     def resume_mode(self) -> str:

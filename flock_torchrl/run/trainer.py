@@ -37,7 +37,7 @@ from typing import Any, Sequence
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
@@ -118,7 +118,11 @@ def config_differences(saved: Any, requested: Any, allowed: Sequence[str]) -> li
     def free(key: str) -> bool:
         return any(key == p or key.startswith(f"{p}.") for p in allowed)
 
-    return sorted(k for k in set(a) | set(b) if not free(k) and a.get(k, "<absent>") != b.get(k, "<absent>"))
+    def added(key: str) -> bool:  # a field added since the run was saved, at its empty default
+        return key not in a and b.get(key) in ([], {}, None)
+
+    return sorted(k for k in set(a) | set(b)
+                  if not free(k) and not added(k) and a.get(k, "<absent>") != b.get(k, "<absent>"))
 
 
 # ---------------------------------------------------------------------------- before anything runs
@@ -133,7 +137,7 @@ def available_memory() -> int | None:
 def memory_estimate(cfg: TrainConfig) -> dict[str, int]:
     """Bytes the run will hold, by part: the replay buffer (swarm transitions of every key the
     learner stores) and the worlds (the env state and one step's pairwise ``[B, N, N]`` terms)."""
-    s, n, b = cfg.scenario, cfg.scenario.n_uavs, cfg.experiment.num_envs
+    s, n, b = cfg.scenario, max(t.n_uavs for t in cfg.train_scenarios), cfg.experiment.num_envs
     obs, state = observation_size(s), state_size(s)
     per_uav = 4 * (2 * (obs + state) + 2 + 1 + 1 + 2 + 2)          # float32 obs/state twice, action, ...
     parts = {}
@@ -150,7 +154,12 @@ def prepare(cfg: TrainConfig, run_dir: Path) -> None:
     the run fits in memory, the folder's state agrees with ``resume``, the folder is writable.
     Raises :class:`ConfigError` or :class:`CheckpointError` with one line to print."""
     check_spawn_feasible(cfg.scenario)
-    check_spawn_feasible(cfg.train_scenario)
+    for scenario in cfg.train_scenarios:
+        try:
+            check_spawn_feasible(scenario)
+        except ConfigError as exc:
+            raise ConfigError("experiment.swarm_sizes" if cfg.experiment.swarm_sizes else exc.key,
+                              exc.message) from None
     free = available_memory()
     if free is not None:
         need = memory_estimate(cfg)
@@ -254,10 +263,27 @@ def _start_resource_tracker() -> None:
             signal.signal(signum, handler)
 
 
-def _make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, parent: int) -> FlockingEnv:
+def _make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, parent: int,
+              scenario: Any = None) -> FlockingEnv:
     if os.getpid() != parent:
         _ignore_stop_signals()
-    return FlockingEnv(cfg.train_scenario, num_envs=num_envs, device=device, seed=seed, compile_step=cfg.compile)
+    return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
+                       compile_step=cfg.compile)
+
+
+def per_uav(batch: TensorDictBase) -> TensorDictBase:
+    """Swarm transitions ``[M]`` (agents ``[M, N]``) as single-UAV ones ``[M * N]`` (agents
+    ``[M * N, 1]``): what a replay buffer shared by several swarm sizes holds. The networks are
+    per UAV and the done flags per UAV (:func:`agentwise_done`), so the losses see the same
+    terms. UAV ``j`` of swarm transition ``m`` lands at row ``m * N + j``."""
+    flat = batch.select(*(k for k in TRANSITION_KEYS if "agents" in k), strict=False).reshape(-1)
+    m, n = flat.get("agents").batch_size
+    out = TensorDict({"agents": TensorDict({}, [m * n, 1]), "next": {"agents": TensorDict({}, [m * n, 1])}},
+                     batch_size=[m * n], device=flat.device)
+    for key in flat.keys(True, True):
+        value = flat.get(key)
+        out.set(key, value.reshape(m * n, 1, *value.shape[2:]))
+    return out
 
 
 def agentwise_done(batch: TensorDictBase, n_agents: int) -> TensorDictBase:
@@ -348,11 +374,21 @@ class _Training:
         device = torch.device(cfg.device)
         per_worker = exp.num_envs // exp.workers
         factory = functools.partial(_make_env, cfg, per_worker, device, parent=os.getpid())
-        self.env = env = factory(cfg.seed * 1000)
+        scenarios = cfg.train_scenarios
+        self.mixed = bool(exp.swarm_sizes)
+        if self.mixed:  # one env per swarm size, the worlds split evenly, seeds 1000 * seed + i
+            share = exp.num_envs // len(scenarios)
+            self.envs = [_make_env(cfg, share, device, cfg.seed * 1000 + i, os.getpid(), scenario)
+                         for i, scenario in enumerate(scenarios)]
+        else:
+            self.envs = [factory(cfg.seed * 1000)]
+        self.env = env = self.envs[0]
         self.learner = learner = make_learner(env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile)
         self.buffer = None
         if learner.off_policy:
-            n = cfg.scenario.n_uavs
+            # Swarm transitions of one size (batch_size / N of them, rounded up), or single UAV
+            # transitions when the sizes are mixed.
+            n = 1 if self.mixed else cfg.scenario.n_uavs
             batch_swarm = max(1, math.ceil(cfg.algo.batch_size / n))
             capacity = max(batch_swarm, math.ceil(cfg.algo.buffer_size / n))
             self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device),
@@ -366,10 +402,13 @@ class _Training:
                                           "exactly; start a new run")
                 self.buffer.load_state_dict(payload["buffer"])
             if exp.workers == 1:
-                env.set_state(payload["env_state"])
+                states = payload["env_state"]
+                for one, state in zip(self.envs, states if self.mixed else [states]):
+                    one.set_state(state)
         steps = exp.steps_per_batch if learner.off_policy else cfg.algo.rollout_steps
         init_random = max(0, exp.init_random_frames - self.counters["frames"]) if learner.off_policy else 0
-        kwargs = dict(frames_per_batch=exp.num_envs * steps, total_frames=-1, device=device,
+        kwargs = dict(frames_per_batch=(self.env.num_envs if self.mixed else exp.num_envs) * steps, total_frames=-1,
+                      device=device,
                       init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
                       auto_register_policy_transforms=False)
         if exp.workers > 1:
@@ -377,6 +416,9 @@ class _Training:
                                                  for w in range(exp.workers)], learner.collector_policy, **kwargs)
         else:
             self.collector = Collector(env, learner.collector_policy, track_traj_ids=False, **kwargs)
+        # More sizes: one collector each, stepped in turn; their batches are learned from together.
+        self.collectors = [self.collector] + [Collector(e, learner.collector_policy, track_traj_ids=False, **kwargs)
+                                              for e in self.envs[1:]]
         if payload is not None:
             torch.set_rng_state(payload["rng"]["torch"])
         self.meta = checkpoint_meta(cfg, env)
@@ -402,7 +444,8 @@ class _Training:
                 if not finished:
                     self._loop(schedule, signals)
             finally:
-                _shutdown(self.collector)
+                for collector in self.collectors:
+                    _shutdown(collector)
             if signals.received:
                 return self._stop(signals.received)
             return self._finish(signals)
@@ -422,16 +465,19 @@ class _Training:
 
     def _loop(self, schedule: Schedule, signals: Signals) -> None:
         counters, split = self.counters, self.split
-        env_busy, t_last = self.env.busy_seconds, time.perf_counter()
+        def busy() -> float:
+            return sum(e.busy_seconds for e in self.envs)
+
+        env_busy, t_last = busy(), time.perf_counter()
         try:
-            for batch in self.collector:
+            for batches in zip(*self.collectors):
                 t_collected = time.perf_counter()
                 if self.cfg.experiment.workers == 1:  # collection = the collector's own work beside the env's
-                    split["env"] += self.env.busy_seconds - env_busy
-                    split["collection"] -= self.env.busy_seconds - env_busy
-                    env_busy = self.env.busy_seconds
+                    split["env"] += busy() - env_busy
+                    split["collection"] -= busy() - env_busy
+                    env_busy = busy()
                 split["collection"] += t_collected - t_last
-                stats = self._consume(batch)
+                stats = self._consume(batches)
                 self._periodic(schedule, stats)
                 t_last = time.perf_counter()
                 if signals.received or schedule.finished(counters["frames"], counters["episodes"],
@@ -442,19 +488,19 @@ class _Training:
                   flush=True)
             raise
 
-    def _consume(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """Count, log and learn from one collector batch."""
-        frames = batch.numel()
+    def _consume(self, batches: Sequence[TensorDictBase]) -> dict[str, torch.Tensor]:
+        """Count, log and learn from one batch of each collector (one, unless sizes are mixed)."""
+        frames = sum(batch.numel() for batch in batches)
         self.counters["frames"] += frames
         self.counters["iterations"] += 1
-        batch = agentwise_done(batch, self.cfg.scenario.n_uavs)
-        rows = self._finished_episodes(batch)
+        batches = [agentwise_done(batch, env.n_agents) for batch, env in zip(batches, self.envs)]
+        rows = [row for batch in batches for row in self._finished_episodes(batch)]
         if rows:
             self.episode_log.write(rows)
             self.recent = (self.recent + [(r[2], bool(r[3])) for r in rows])[-100:]
         if hasattr(self.learner, "on_frames"):
             self.learner.on_frames(frames)
-        stats, n_updates = self._learn(batch)
+        stats, n_updates = self._learn(batches)
         self.counters["updates"] += n_updates
         if self.cfg.experiment.workers > 1:  # a single collector shares the learner's policy
             self.collector.update_policy_weights_()
@@ -479,15 +525,17 @@ class _Training:
         split["evaluation"] += t2 - t1
         split["checkpoints"] += t3 - t2
 
-    def _learn(self, batch: TensorDictBase) -> tuple[dict[str, torch.Tensor], int]:
+    def _learn(self, batches: Sequence[TensorDictBase]) -> tuple[dict[str, torch.Tensor], int]:
         learner, exp, split = self.learner, self.cfg.experiment, self.split
-        if not learner.off_policy:
+        if not learner.off_policy:  # one size (TrainConfig refuses mixed sizes on-policy)
             start = time.perf_counter()
-            stats = learner.update(batch)
+            stats = learner.update(batches[0])
             split["update"] += time.perf_counter() - start
             return stats, 1
         start = time.perf_counter()
-        self.buffer.extend(batch.select(*TRANSITION_KEYS, strict=False).reshape(-1))
+        for batch in batches:
+            self.buffer.extend(per_uav(batch) if self.mixed else
+                               batch.select(*TRANSITION_KEYS, strict=False).reshape(-1))
         split["buffer"] += time.perf_counter() - start
         stats: dict[str, torch.Tensor] = {}
         n = 0
@@ -607,7 +655,7 @@ class _Training:
             "curve": torch.tensor(self.episode_log.rows(), dtype=torch.float64).reshape(-1, len(EPISODE_COLUMNS)),
         }
         if exp.workers == 1:
-            state["env_state"] = self.env.get_state()
+            state["env_state"] = [e.get_state() for e in self.envs] if self.mixed else self.env.get_state()
         if self.buffer is not None and exp.keep_buffer_in_checkpoint:
             state["buffer"] = self.buffer.state_dict()
         try:

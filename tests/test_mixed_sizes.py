@@ -1,0 +1,84 @@
+"""Several swarm sizes trained at once (experiment.swarm_sizes): single-UAV transitions in the
+replay buffer give the losses the same terms; a mixed run trains, checkpoints, resumes exactly
+and its policy flies any N; bad recipes are refused before anything runs."""
+
+import pytest
+import torch
+
+from flock_torchrl import FlockingEnv, load_policy
+from flock_torchrl.config import ConfigError, algo_config, compose
+from flock_torchrl.policies.checkpoint import load_checkpoint
+from flock_torchrl.policies.learners import SACLearner
+from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done, make_train_config, per_uav, train
+
+
+def swarm_batch(n_uavs: int, steps: int = 3):
+    env = FlockingEnv("train", 4, "cpu", 0, policy_id="policy3_g", n_uavs=n_uavs)
+    torch.manual_seed(0)
+    td, rows = env.reset(), []
+    for _ in range(steps):
+        step, td = env.step_and_maybe_reset(env.rand_action(td))
+        rows.append(agentwise_done(step, n_uavs).select(*TRANSITION_KEYS, strict=False))
+    return env, torch.stack(rows, 1).reshape(-1)  # [M] swarm transitions
+
+
+def test_per_uav_puts_uav_j_of_transition_m_at_row_m_n_plus_j():
+    _, batch = swarm_batch(3)
+    single = per_uav(batch)
+    m, n = batch.shape[0], 3
+    assert single.batch_size == (m * n,) and single["agents"].batch_size == (m * n, 1)
+    keys = [k for k in TRANSITION_KEYS if "agents" in k and k in batch.keys(True)]
+    assert len(keys) == 8
+    for key in keys:
+        assert single[key].shape == (m * n, 1, *batch[key].shape[2:]), key
+        for row, (i, j) in ((0, (0, 0)), (4, (1, 1)), (m * n - 1, (m - 1, n - 1))):
+            assert torch.equal(single[key][row, 0], batch[key][i, j]), (key, row)
+
+
+def test_sac_losses_on_single_uav_transitions_equal_those_on_swarm_transitions():
+    env, batch = swarm_batch(5)
+    learner = SACLearner(env, algo_config(compose("train", ["experiment=fast"]).algo), "state")
+    values = []
+    for data in (batch, per_uav(batch)):
+        torch.manual_seed(3)  # the same draws, in the same order: UAV-major either way
+        out = learner.loss(data.clone())
+        values.append({k: out[k].detach() for k in ("loss_actor", "loss_qvalue", "loss_alpha")})
+    for key in values[0]:
+        assert torch.allclose(values[0][key], values[1][key], rtol=1e-5, atol=1e-6), key
+
+
+def mixed(*overrides):
+    return make_train_config("policy3_g", "tiny", ["scenario.max_steps=40", "progress=false",
+                                                   "experiment.swarm_sizes=[3,6]", "experiment.eval_every_frames=0",
+                                                   *overrides])
+
+
+def test_a_mixed_run_trains_resumes_exactly_and_flies_any_size(tmp_path):
+    whole = train(mixed("experiment.max_frames=192"), tmp_path / "whole")
+    train(mixed("experiment.max_frames=96"), tmp_path / "split")
+    resumed = train(mixed("experiment.max_frames=192", "resume=true"), tmp_path / "split")
+    a, b = load_checkpoint(whole.checkpoint), load_checkpoint(resumed.checkpoint)
+    assert a["counters"] == {**b["counters"], "seconds": a["counters"]["seconds"]}
+    assert a["counters"]["frames"] == 192 and a["counters"]["updates"] > 0
+    assert len(a["env_state"]) == 2 and a["buffer"]["_storage"]["_len"] > 0
+    for key, value in a["actor"].items():
+        assert torch.equal(value, b["actor"][key]), key
+    policy = load_policy(whole.checkpoint)
+    for n in (2, 9):
+        env = FlockingEnv("train", 2, "cpu", 1, policy_id="policy3_g", n_uavs=n)
+        assert env.rollout(3, policy)["agents", "action"].shape == (2, 3, n, 2)
+
+
+@pytest.mark.parametrize("overrides, words", [
+    (["experiment.swarm_sizes=[3,3]"], "sizes repeat"),
+    (["experiment.swarm_sizes=[3,5,6]"], "must divide num_envs=4"),
+    (["experiment.swarm_sizes=[3,0]"], "experiment.swarm_sizes[1]"),
+    (["experiment.swarm_sizes=[3,5]", "experiment.workers=2"], "set workers=1"),
+    (["experiment.swarm_sizes=[3,5]", "policy=policyp_g"], "off-policy"),
+])
+def test_bad_mixed_recipes_are_refused_by_name(overrides, words):
+    from flock_torchrl.config import TrainConfig
+
+    with pytest.raises(ConfigError, match="swarm_sizes") as info:
+        TrainConfig.from_config(compose("train", ["experiment=tiny", *overrides]))
+    assert words in str(info.value)
