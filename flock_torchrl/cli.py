@@ -177,7 +177,8 @@ def _run_figures(cfg: FiguresConfig, out: Path) -> None:
 def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
     from .policies.registry import resolve
 
-    resolve(cfg.policy_name, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device)
+    for policy in (cfg.policy_name, *cfg.others):
+        resolve(policy, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device)
 
 
 def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
@@ -185,7 +186,7 @@ def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
 
     _set_threads(cfg.threads)
     scaling(cfg.policy_name, cfg.scenario.reading, list(cfg.sizes), cfg.episodes, cfg.seed, cfg.checkpoints_dir,
-            cfg.device, out, log=_say)
+            cfg.device, out, log=_say, others=list(cfg.others))
 
 
 # -- ship, tune, benchmark
@@ -199,7 +200,7 @@ def _run_ship(cfg: ShipConfig, out: Path) -> None:
     from .run.shipping import ship_checkpoints
 
     ship_checkpoints(cfg.scenario.reading, cfg.experiment, Path(cfg.runs_dir), Path(cfg.checkpoints_dir),
-                     cfg.paper_experiment, Path(cfg.paper_recipe_dir), log=_say)
+                     cfg.paper_experiment, Path(cfg.paper_recipe_dir), log=_say, collections=dict(cfg.collections))
 
 
 def _prepare_tune(cfg: TuneConfig, out: Path) -> None:

@@ -851,6 +851,7 @@ class ScalingConfig(WorldApp):
     """``conf/scaling.yaml``: one shipped policy flown by larger swarms."""
 
     policy_name: str = MISSING
+    others: List[str] = field(default_factory=list)   # more policies (ids, checkpoint files) as extra rows
     sizes: List[int] = MISSING
     episodes: int = MISSING
     seed: int = MISSING
@@ -911,11 +912,15 @@ class ShipConfig(WorldApp):
     experiment: str = MISSING
     runs_dir: str = MISSING
     paper_experiment: str = MISSING
+    collections: Dict[str, str] = field(default_factory=dict)  # experiment -> folder under <checkpoints>/<reading>/
 
     def check(self, prefix: str | None = None) -> "ShipConfig":
         self._check_world()
         folder_name("experiment", self.experiment)
         folder_name("paper_experiment", self.paper_experiment)
+        for experiment, folder in self.collections.items():
+            folder_name(f"collections.{experiment}", experiment)
+            folder_name(f"collections.{experiment}", folder)
         return self._mark_checked()
 
 

@@ -67,6 +67,13 @@ def test_a_mixed_run_trains_resumes_exactly_and_flies_any_size(tmp_path):
     for n in (2, 9):
         env = FlockingEnv("train", 2, "cpu", 1, policy_id="policy3_g", n_uavs=n)
         assert env.rollout(3, policy)["agents", "action"].shape == (2, 3, n, 2)
+    # a row of the scaling table beside the shipped Policy3-G, with the sizes it was trained at
+    from flock_torchrl.report.scaling import scaling
+
+    rows = scaling("policy3_g", "paper_fit", [4], 2, others=[str(whole.checkpoint)], out_dir=tmp_path / "scaling",
+                   log=lambda _: None)
+    assert [(r["policy"], r["trained_sizes"]) for r in rows] == [("Policy3-G", "5"), ("Policy3-G [tiny]", "3+6")]
+    assert "| Policy3-G [tiny] | 3+6 | 4 |" in (tmp_path / "scaling" / "scaling.md").read_text()
 
 
 @pytest.mark.parametrize("overrides, words", [

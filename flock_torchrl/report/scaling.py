@@ -1,6 +1,7 @@
-"""Beyond the paper: a policy trained with five UAVs, flown by larger swarms.
+"""Beyond the paper: policies flown by larger swarms than they were trained with.
 
-The paper stops at nine UAVs (S2). :func:`scaling` evaluates one shipped policy on the
+The paper stops at nine UAVs (S2). :func:`scaling` evaluates shipped policies (Policy3-G
+trained with five UAVs; the mixed-size one trained with 5, 9 and 20 at once) on the
 training scenario at N = 5, 9, 20, 50, 100 (500 episodes each, the evaluation seed), the
 spawn disc growing with the swarm by the reading's rule (docs/specification.md section 9),
 and writes a table and a plot of success, safe_success, d_c, d_min_uav and t_goal against N.
@@ -17,43 +18,60 @@ from matplotlib.figure import Figure
 
 from ..config import scenario_config
 from ..io import write_csv, write_text
+from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import resolve
 from ..config import EVAL_SEED
 from ..run.rollout import evaluate_handle
 from .figures import save_figure
 
-COLUMNS = ("n_uavs", "spawn_radius", "crashed_rate", "success_rate", "success_rate_low", "success_rate_high", "safe_success_rate",
-           "safe_success_rate_low", "safe_success_rate_high", "d_c", "d_c_std", "d_min_uav", "d_min_uav_std",
-           "t_goal", "t_goal_std", "n_episodes", "seconds")
+COLUMNS = ("policy", "trained_sizes", "n_uavs", "spawn_radius", "crashed_rate", "success_rate", "success_rate_low",
+           "success_rate_high", "safe_success_rate", "safe_success_rate_low", "safe_success_rate_high", "d_c", "d_c_std",
+           "d_min_uav", "d_min_uav_std", "t_goal", "t_goal_std", "n_episodes", "seconds")
+
+
+def training_of(handle) -> tuple[str, str]:
+    """The experiment a learned policy was trained with and its swarm sizes (``5``, ``5+9+20``),
+    from its checkpoint; dashes for a rule-based one."""
+    try:
+        meta = load_checkpoint(handle.origin)["meta"]
+    except (CheckpointError, OSError):
+        return "—", "—"
+    return str(meta.get("experiment", "—")), "+".join(str(n) for n in meta.get("trained_sizes") or [meta["n_agents"]])
 
 
 def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100), episodes: int = 500,
             seed: int = EVAL_SEED, checkpoints_dir: str | Path = "checkpoints", device: str = "cpu",
-            out_dir: str | Path = ".", log: Callable[[str], None] = print) -> list[dict]:
-    """Evaluate ``policy`` (its lowest shipped seed) at each swarm size; write ``scaling.csv``,
+            out_dir: str | Path = ".", log: Callable[[str], None] = print, others: Sequence[str] = ()) -> list[dict]:
+    """Evaluate ``policy`` (its lowest shipped seed) and each of ``others`` (policy ids or
+    checkpoint files, e.g. the mixed-size policy) at each swarm size; write ``scaling.csv``,
     ``scaling.md`` and ``scaling.png`` into ``out_dir``."""
-    handle = resolve(policy, reading, checkpoints_dir, device)[0]
+    handles = [resolve(p, reading, checkpoints_dir, device)[0] for p in (policy, *others)]
     rows = []
-    for n in sizes:
-        start = time.perf_counter()
-        result = evaluate_handle(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
-        s = result.summary()
-        radius = scenario_config("train", reading=reading, n_uavs=n).swarm_spawn_radius
-        rows.append({"n_uavs": n, "spawn_radius": radius, "crashed_rate": result.rate("crashed").rate,
-                     **{k: s[k] for k in COLUMNS if k in s},
-                     "seconds": round(time.perf_counter() - start, 1)})
-        log(f"[{len(rows)}/{len(sizes)}] N={n}: {result}")
+    for k, handle in enumerate(handles):
+        experiment, trained = training_of(handle)
+        label = f"{handle.name} [{experiment}]" if k else handle.name
+        for n in sizes:
+            start = time.perf_counter()
+            result = evaluate_handle(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
+            s = result.summary()
+            radius = scenario_config("train", reading=reading, n_uavs=n).swarm_spawn_radius
+            rows.append({"policy": label, "trained_sizes": trained, "n_uavs": n, "spawn_radius": radius,
+                         "crashed_rate": result.rate("crashed").rate, **{c: s[c] for c in COLUMNS if c in s},
+                         "seconds": round(time.perf_counter() - start, 1)})
+            log(f"[{len(rows)}/{len(sizes) * len(handles)}] {label} N={n}: {result}")
     out = Path(out_dir)
     write_csv(out / "scaling.csv", COLUMNS, rows)
-    lines = [f"# {handle.name} trained with 5 UAVs, flown by N UAVs (reading `{reading}`)", "",
+    lines = [f"# Policies flown by N UAVs (reading `{reading}`)", "",
              f"Training scenario, {episodes} episodes per size, evaluation seed {seed}, deterministic actions; "
-             f"checkpoint `{handle.origin}`. Spawn radius by the reading's swarm-size rule "
-             "(docs/specification.md section 9). Rates with 95 % Wilson intervals; cells mean ± std.", "",
-             "An episode ends when any UAV comes within 0.5 m of an obstacle: `crashed` counts those episodes.", "",
-             "| N | spawn radius (m) | success % | safe_success % | crashed % | d_c (m) | d_min_uav (m) | t_goal (s) |",
-             "|---|---|---|---|---|---|---|---|"]
+             "checkpoints " + ", ".join(f"`{h.origin}`" for h in handles) + ". Spawn radius by the reading's "
+             "swarm-size rule (docs/specification.md section 9). Rates with 95 % Wilson intervals; cells mean ± std.",
+             "", "An episode ends when any UAV comes within 0.5 m of an obstacle: `crashed` counts those episodes.", "",
+             "| policy | trained at N | N | spawn radius (m) | success % | safe_success % | crashed % | d_c (m) | "
+             "d_min_uav (m) | t_goal (s) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['n_uavs']} | {r['spawn_radius']:.2f} | {100 * r['success_rate']:.1f} "
+        lines.append(f"| {r['policy']} | {r['trained_sizes']} | {r['n_uavs']} | {r['spawn_radius']:.2f} | "
+                     f"{100 * r['success_rate']:.1f} "
                      f"[{100 * r['success_rate_low']:.1f}, {100 * r['success_rate_high']:.1f}] | "
                      f"{100 * r['safe_success_rate']:.1f} [{100 * r['safe_success_rate_low']:.1f}, "
                      f"{100 * r['safe_success_rate_high']:.1f}] | {100 * r['crashed_rate']:.1f} | "
@@ -61,29 +79,34 @@ def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100
                      f"{r['d_min_uav']:.2f} ± {r['d_min_uav_std']:.2f} | "
                      + ("—" if math.isnan(r["t_goal"]) else f"{r['t_goal']:.1f} ± {r['t_goal_std']:.1f}") + " |")
     write_text(out / "scaling.md", "\n".join(lines) + "\n")
-    plot(rows, f"{handle.name} ({reading}) by swarm size", out / "scaling.png")
+    plot(rows, f"By swarm size ({reading})", out / "scaling.png")
     return rows
 
 
 def plot(rows: Sequence[dict], title: str, path: Path) -> None:
-    n = [r["n_uavs"] for r in rows]
-    fig = Figure(figsize=(10, 3.2), dpi=100, layout="constrained")
-    panels = [("rate", [("success_rate", "success"), ("safe_success_rate", "safe_success")], (0, 1.02)),
+    policies = list(dict.fromkeys(r["policy"] for r in rows))
+    fig = Figure(figsize=(10, 3.4), dpi=100, layout="constrained")
+    panels = [("rate", [("success_rate", "success"), ("safe_success_rate", "safe")], (0, 1.02)),
               ("m", [("d_c", "d_c"), ("d_min_uav", "d_min_uav")], None), ("s", [("t_goal", "t_goal")], None)]
     for i, (unit, series, ylim) in enumerate(panels):
         ax = fig.add_subplot(1, 3, i + 1)
-        for key, label in series:
-            y = [r[key] for r in rows]
-            std = [r.get(f"{key}_std", 0.0) for r in rows]
-            ax.errorbar(n, y, yerr=None if key.endswith("rate") else std, marker="o", ms=3, capsize=2, label=label)
-        ax.set_xscale("log")
-        ax.set_xticks(n, [str(x) for x in n])
+        for p, policy in enumerate(policies):
+            mine = [r for r in rows if r["policy"] == policy]
+            n = [r["n_uavs"] for r in mine]
+            for key, label in series:
+                y = [r[key] for r in mine]
+                std = [r.get(f"{key}_std", 0.0) for r in mine]
+                name = label if len(policies) == 1 else f"{label}: {policy} (N={mine[0]['trained_sizes']})"
+                ax.errorbar(n, y, yerr=None if key.endswith("rate") else std, marker="os^v"[p % 4], ms=3, capsize=2,
+                            linestyle="-" if p == 0 else "--", label=name)
+            ax.set_xscale("log")
+            ax.set_xticks(n, [str(x) for x in n])
         ax.set_xlabel("UAVs (N)")
         ax.set_ylabel(unit)
         if ylim:
             ax.set_ylim(*ylim)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=6)
     fig.suptitle(title, fontsize=10)
     save_figure(fig, path)
 

@@ -65,16 +65,23 @@ def ship_collection(runs: list[Path], dest: Path, reading: str, title: str, sour
 
 def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_dir: Path,
                      paper_experiment: str, paper_recipe_dir: Path,
-                     log: Callable[[str], None] = print) -> list[Path]:
+                     log: Callable[[str], None] = print, collections: dict[str, str] | None = None) -> list[Path]:
     """Export ``<runs>/<experiment>/<reading>/<policy>/seed<k>/last.pt`` (runs without extra
-    overrides only) to ``<checkpoints>/<reading>/<policy>/seed<k>.pt``, and the paper recipe's
-    ``<runs>/<paper_experiment>/<reading>/...`` to ``<paper_recipe_dir>/<policy>/seed<k>.pt``."""
+    overrides only) to ``<checkpoints>/<reading>/<policy>/seed<k>.pt``, the paper recipe's
+    ``<runs>/<paper_experiment>/<reading>/...`` to ``<paper_recipe_dir>/<policy>/seed<k>.pt``,
+    and each further experiment of ``collections`` (experiment -> folder, e.g. ``mixed``) to
+    ``<checkpoints>/<reading>/<folder>/<policy>/seed<k>.pt``."""
     fast = _finished_runs(runs_dir / experiment / reading)
     paper = _finished_runs(runs_dir / paper_experiment / reading)
-    return (ship_collection(fast, checkpoints_dir / reading, reading, "Shipped checkpoints",
-                            f"{runs_dir}/{experiment}/{reading}/", log)
-            + ship_collection(paper, paper_recipe_dir, reading, "Shipped checkpoints of the paper's recipe",
-                              f"{runs_dir}/{paper_experiment}/{reading}/", log))
+    shipped = (ship_collection(fast, checkpoints_dir / reading, reading, "Shipped checkpoints",
+                               f"{runs_dir}/{experiment}/{reading}/", log)
+               + ship_collection(paper, paper_recipe_dir, reading, "Shipped checkpoints of the paper's recipe",
+                                 f"{runs_dir}/{paper_experiment}/{reading}/", log))
+    for other, folder in (collections or {}).items():
+        runs = _finished_runs(runs_dir / other / reading)
+        shipped += ship_collection(runs, checkpoints_dir / reading / folder, reading,
+                                   f"Shipped checkpoints of experiment={other}", f"{runs_dir}/{other}/{reading}/", log)
+    return shipped
 
 
 __all__ = ["ship_checkpoints", "ship_collection"]

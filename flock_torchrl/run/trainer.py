@@ -190,7 +190,7 @@ def checkpoint_meta(cfg: TrainConfig, env: FlockingEnv) -> dict[str, Any]:
         "n_agents": cfg.scenario.n_uavs, "algo": cfg.algo.name, "critic_input": cfg.policy.critic_input,
         "stochastic": cfg.algo.name != "ddpg", "hidden": cfg.algo.hidden, "depth": cfg.algo.depth,
         "obs_dim": observation_size(cfg.scenario), "seed": cfg.seed,
-        "experiment": cfg.experiment.name,
+        "experiment": cfg.experiment.name, "trained_sizes": [t.n_uavs for t in cfg.train_scenarios],
     }
 
 
