@@ -8,6 +8,8 @@
 * **learner**: SAC gradient steps/s at the fast recipe's minibatch (1280 UAV transitions)
   and the paper's (128), ours (eager, and with the compiled loss) against the learner as it
   was before the speed work (``MultiAgentMLP`` networks, three Adam optimisers), same batches;
+* **paper loop**: the paper recipe's whole training loop (one env, one update per step),
+  compiled against eager, in updates/s, with each run's time split;
 * **GPU** (when CUDA is present): the env at B = 65,536 and the updates on the device.
 
 Timings alternate the candidates and keep each one's best of several repetitions, so load
@@ -214,6 +216,43 @@ def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, re
     return rows
 
 
+# The paper recipe's whole loop as it was measured before the speed work: Policy3-G's seed-0
+# run of experiment=paper averaged 74 updates/s over its 3.1 hours (README, Throughput). Not a
+# same-process baseline, so it is a note beside the eager loop, never a ratio.
+PAPER_LOOP_BEFORE = 74.0
+PAPER_LOOP_GOAL = 230.0
+
+
+def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[str]]:
+    """The paper recipe's whole training loop (one env, one update per step) for ``frames``
+    frames, compiled (loss and step) against eager, run one after the other in this process,
+    each after a short warm-up run (compilation happens there); updates/s over the loop (env,
+    collection, buffer, sampling, update, logging), and each run's time split."""
+    import tempfile
+
+    from ..run.trainer import make_train_config, train
+
+    rates, splits = {}, []
+    for name, compile in (("eager", False), ("compiled", True)):
+        def run(n: int):
+            cfg = make_train_config("policy3_g", "paper", [
+                f"experiment.max_frames={n}", "experiment.max_episodes=0", "experiment.eval_every_frames=0",
+                "experiment.checkpoint_every_frames=0", "experiment.eval_episodes=1", "progress=false",
+                "logger=none", f"compile={str(compile).lower()}", f"device={device}"])
+            with tempfile.TemporaryDirectory() as tmp:
+                return train(cfg, tmp)
+
+        run(64)  # warm-up: the compiled step and loss are compiled here, not in the timed run
+        result = run(frames)
+        loop = sum(v for k, v in result.split.items() if k not in ("evaluation", "checkpoints"))
+        rates[name] = result.updates / loop
+        splits.append(f"paper loop ({name}, {frames} frames): {result.split_line()}")
+    rows = [Row(f"paper recipe loop, {frames} frames (compiled vs eager)", rates["compiled"], rates["eager"],
+                "updates/s", f"before the speed work: {PAPER_LOOP_BEFORE:.0f}/s over a whole run; "
+                             f"goal {PAPER_LOOP_GOAL:.0f}/s")]
+    return rows, splits
+
+
 def gpu_rows(device: str = "cuda") -> list[Row]:
     """The env at B = 65,536 on the GPU (compiled vs eager) and the updates there."""
     rows = env_rows((65536,), steps=4, repeat=2, device=device)
@@ -225,11 +264,16 @@ def gpu_rows(device: str = "cuda") -> list[Row]:
     return rows + learner_rows(device=device)
 
 
-def run_all(quick: bool = False, device: str = "cpu") -> list[Row]:
+def run_all(quick: bool = False, device: str = "cpu", notes: list[str] | None = None) -> list[Row]:
+    """Every row; the paper loop's time splits are appended to ``notes``."""
     repeat = 2 if quick else 3
     rows = env_rows(steps=10 if quick else 20, repeat=repeat, device=device)
     rows += scale_rows(repeat=repeat, device=device)
     rows += learner_rows(updates=6 if quick else 30, repeat=2 if quick else 5, device=device)
+    loop, splits = loop_rows(frames=600 if quick else 3000, device=device)
+    rows += loop
+    if notes is not None:
+        notes += splits
     if torch.cuda.is_available() and device == "cpu":
         rows += gpu_rows()
     return rows
@@ -249,10 +293,12 @@ def format_rows(rows: list[Row]) -> str:
 def benchmark_app(cfg, out_dir) -> None:
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
-    text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device)))
+    notes: list[str] = []
+    text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device), notes=notes))
+    text += "\n" + "\n".join(notes)
     print(text, flush=True)
     write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
 
 
-__all__ = ["PreviousSACUpdate", "Row", "benchmark_app", "env_rows", "format_rows", "learner_rows", "paired",
+__all__ = ["PreviousSACUpdate", "Row", "benchmark_app", "env_rows", "format_rows", "learner_rows", "loop_rows", "paired",
            "run_all", "scale_rows"]
