@@ -11,8 +11,10 @@ READING ?=
 R_ARG   := $(if $(READING),reading=$(READING),)
 EPISODES ?= 500
 
-.PHONY: install test test-all demo train train-all train-paper ship-checkpoints reproduce-table3 reproduce-table4 \
-        reproduce-table5 figures publish tune-baselines benchmark scaling clean
+.PHONY: install test test-all demo train train-all train-paper train-paper-all train-mixed ship-checkpoints \
+        reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-paper-recipe \
+        publish-scaling tune-baselines \
+        benchmark scaling clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -50,6 +52,20 @@ train-paper: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py experiment=paper policy=policy3_g seed=0 progress=false compile=true \
 		resume=auto $(R_ARG)
 
+# The paper's recipe for the policies Table III's claims rest on (issue 19), under paper_fit:
+# seed 0 of seven policies, then seeds 1 and 2 of Policy3-G, 4-G and 5-G; two single-threaded
+# runs at a time (about 3.5 hours each here), each resuming where it stopped (resume=auto).
+PAPER_RUNS := policy1:0 policy1_g:0 policy2:0 policy2_g:0 policy3:0 policy3_g:0 policy4_g:0 policy5_g:0 \
+              policy3_g:1 policy4_g:1 policy5_g:1 policy3_g:2 policy4_g:2 policy5_g:2
+train-paper-all: $(STAMP)
+	printf '%s\n' $(PAPER_RUNS) | tr ':' ' ' | xargs -P 2 -n 2 sh -c 'OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py \
+		experiment=paper policy=$$0 seed=$$1 reading=paper_fit progress=false compile=true resume=auto'
+
+# One Policy3-G trained on 5, 9 and 20 UAVs at once (experiment=mixed), three seeds, two at a time.
+train-mixed: $(STAMP)
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=mixed policy=policy3_g \
+		progress=false resume=auto seed=$(SEEDS) $(R_ARG)
+
 # The named step that updates checkpoints/ (slim policies of the finished runs, per reading).
 ship-checkpoints: $(STAMP)
 	$(PYTHON) scripts/ship.py reading=literal
@@ -65,6 +81,10 @@ reproduce-table4: $(STAMP)
 reproduce-table5: $(STAMP)
 	$(PYTHON) scripts/reproduce.py table=5 episodes=$(EPISODES) $(R_ARG)
 
+# Table III of the paper-recipe checkpoints (checkpoints/paper_fit/paper_recipe/).
+reproduce-table3-paper: $(STAMP)
+	$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=paper_fit
+
 figures: $(STAMP)
 	$(PYTHON) scripts/figures.py $(R_ARG)
 
@@ -75,7 +95,26 @@ publish: $(STAMP)
 			$(PYTHON) scripts/reproduce.py table=$$t episodes=$(EPISODES) reading=$$r hydra.run.dir=results/$$r || exit 1; \
 		done; \
 		$(PYTHON) scripts/figures.py reading=$$r hydra.run.dir=figures/$$r || exit 1; \
-		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r || exit 1; \
+		if [ -n "$$(ls checkpoints/$$r/paper_recipe/*/seed*.pt 2>/dev/null)" ]; then \
+			$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=$$r \
+				hydra.run.dir=results/$$r || exit 1; \
+		fi; \
+		mixed=checkpoints/$$r/mixed/policy3_g/seed0.pt; \
+		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r \
+			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
+	done
+
+# The parts of publish that change when new checkpoints are shipped, alone: the paper
+# recipe's Table III (paper_fit) and the scaling table with the mixed-size policy.
+publish-paper-recipe: $(STAMP)
+	$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=paper_fit \
+		hydra.run.dir=results/paper_fit
+
+publish-scaling: $(STAMP)
+	for r in literal paper_fit; do \
+		mixed=checkpoints/$$r/mixed/policy3_g/seed0.pt; \
+		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r \
+			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
 	done
 
 tune-baselines: $(STAMP)
@@ -86,9 +125,12 @@ benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/benchmark.py
 
-# Policy3-G (trained with 5 UAVs) flown by 5 to 100 UAVs, into outputs/scaling/<reading>/.
+# Policy3-G (trained with 5 UAVs), and the mixed-size one where shipped, flown by 5 to 100
+# UAVs, into outputs/scaling/<reading>/.
 scaling: $(STAMP)
-	$(PYTHON) scripts/scaling.py $(R_ARG)
+	r=$$($(PYTHON) -c "from flock_torchrl.config import compose; print(compose('scaling', [x for x in ['$(R_ARG)'] if x]).scenario.reading)"); \
+	mixed=checkpoints/$$r/mixed/policy3_g/seed0.pt; \
+	$(PYTHON) scripts/scaling.py $(R_ARG) $$(test -f $$mixed && echo "others=[$$mixed]")
 
 clean:
 	rm -rf outputs multirun .pytest_cache

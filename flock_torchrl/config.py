@@ -816,11 +816,15 @@ class ReproduceConfig(WorldApp):
     threads: int = MISSING
     only: List[str] = field(default_factory=list)
     contenders: List[Any] = field(default_factory=list)  # the user's controllers, as extra rows
+    recipe: str = MISSING                    # fast: checkpoints_dir; paper: paper_recipe_dir (Table III)
     episodes_csv: bool = MISSING
 
     def check(self, prefix: str | None = None) -> "ReproduceConfig":
         self._check_world()
         choice("table", self.table, (3, 4, 5))
+        choice("recipe", self.recipe, ("fast", "paper"))
+        if self.recipe == "paper" and self.table != 3:
+            _fail("recipe", "the paper recipe trained the policies of Table III only (table=3)")
         for i, spec in enumerate(self.contenders):
             _check_contender(f"contenders[{i}]", spec)
         _check_run(self)
