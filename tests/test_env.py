@@ -389,3 +389,13 @@ def test_place_refuses_nan(make_env, argument):
     layout[argument] = bad.reshape(torch.tensor(layout[argument]).shape)
     with pytest.raises(ValueError, match=f"place: {argument} contains NaN"):
         env.place(**layout)
+
+
+def test_a_baseline_on_an_env_without_its_extras_names_them():
+    from flock_torchrl import make_policy
+
+    env = FlockingEnv("s1", num_envs=2, seed=0, policy_id="policy_ma")
+    with pytest.raises(ValueError, match=r"Policy-MA reads the env's extra keys \('physics', 'laser'\)"):
+        make_policy("policy_ma", env)
+    ok = FlockingEnv("s1", num_envs=2, seed=0, policy_id="policy_ma", extras=("physics", "laser"))
+    assert make_policy("policy_ma", ok)(ok.reset())["agents", "action"].shape == (2, 5, 2)

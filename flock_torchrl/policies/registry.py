@@ -52,7 +52,12 @@ class PolicyHandle:
     seed: int | None = None
 
     def build(self, env: Any) -> Module:
-        """The TensorDict module that acts in ``env`` (a :class:`~flock_torchrl.FlockingEnv`)."""
+        """The TensorDict module that acts in ``env`` (a :class:`~flock_torchrl.FlockingEnv`);
+        ``ValueError`` naming them when the env does not emit the extra keys the policy reads."""
+        missing = [e for e in self.extras if e not in tuple(getattr(env, "extras", ()) or ())]
+        if missing:
+            raise ValueError(f"{self.name} reads the env's extra keys {tuple(self.extras)}, and this env does not emit "
+                             f"{tuple(missing)}: build it with FlockingEnv(..., extras={tuple(self.extras)!r})")
         return self.build_for(env)
 
     def check_reading(self, reading: str) -> None:

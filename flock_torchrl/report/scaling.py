@@ -33,10 +33,12 @@ def training_of(handle) -> tuple[str, str]:
     """The experiment a learned policy was trained with and its swarm sizes (``5``, ``5+9+20``),
     from its checkpoint; dashes for a rule-based one."""
     try:
-        meta = load_checkpoint(handle.origin)["meta"]
+        payload = load_checkpoint(handle.origin)
     except (CheckpointError, OSError):
         return "—", "—"
-    return str(meta.get("experiment", "—")), "+".join(str(n) for n in meta.get("trained_sizes") or [meta["n_agents"]])
+    meta, experiment = payload["meta"], (payload.get("config") or {}).get("experiment", {})
+    sizes = meta.get("trained_sizes") or experiment.get("swarm_sizes") or [meta["n_agents"]]
+    return str(meta.get("experiment", "—")), "+".join(str(n) for n in sizes)
 
 
 def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100), episodes: int = 500,
