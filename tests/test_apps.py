@@ -114,6 +114,22 @@ def test_the_wheel_carries_the_configs(tmp_path):
                           timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "pooled over 3 checkpoints" in proc.stdout and str(site / "flock_torchrl" / "checkpoints") in proc.stdout
+    # A user's scenario folder outside the repository, trained on and evaluated from the wheel (issue 18).
+    conf = tmp_path / "my_conf" / "scenario"
+    conf.mkdir(parents=True)
+    (conf / "corridor.yaml").write_text("defaults: [train, _self_]\nname: corridor\ncircles: []\n"
+                                        "rectangles: [[40.0, 30.0, 40.0, 4.0], [40.0, 50.0, 40.0, 4.0]]\n")
+    for app, args in (("train", ["experiment=tiny", "experiment.max_frames=32", "experiment.eval_every_frames=0",
+                                 "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false"]),
+                      ("evaluate", ["policy=policy_ma", "episodes=2", "scenario.max_steps=20"])):
+        run = (f"import sys; sys.argv = ['flock-{app}', '--config-dir', {str(tmp_path / 'my_conf')!r}, "
+               f"'scenario=corridor', *{args!r}]; from flock_torchrl.cli import {app}_main; {app}_main()")
+        proc = subprocess.run([sys.executable, "-c", run], cwd=tmp_path, env=env, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr
+    (run,) = (tmp_path / "runs" / "tiny" / "paper_fit" / "policy3_g").glob("seed0__*scenario-corridor")
+    assert (run / "last.pt").is_file()
+    assert "Policy-MA on corridor" in proc.stdout
 
 
 def test_every_package_folder_is_packaged():
