@@ -1,7 +1,7 @@
 """Beyond the paper: policies flown by larger swarms than they were trained with.
 
 The paper stops at nine UAVs (S2). :func:`scaling` evaluates shipped policies (Policy3-G
-trained with five UAVs; the mixed-size one trained with 5, 9 and 20 at once) on the
+trained with five UAVs; the mixed-size one trained with 5, 20 and 50 at once) on the
 training scenario at N = 5, 9, 20, 50, 100 (500 episodes each, the evaluation seed), the
 spawn disc growing with the swarm by the reading's rule (docs/specification.md section 9),
 and writes a table and a plot of success, safe_success, d_c, d_min_uav and t_goal against N.
