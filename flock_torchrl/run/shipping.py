@@ -9,15 +9,30 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Callable
 
 from ..io import write_text
 from ..policies.checkpoint import LAST, export_policy, load_checkpoint
+from .schedule import Schedule
 
 
-def _finished_runs(root: Path) -> list[Path]:
-    """``<root>/<policy>/seed<k>/last.pt`` of the runs without extra overrides."""
-    return [s for s in sorted(root.glob(f"*/seed*/{LAST}")) if re.fullmatch(r"seed\d+", s.parent.name)]
+def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Path]:
+    """``<root>/<policy>/seed<k>/last.pt`` of the runs without extra overrides that spent their
+    budget and ran their final evaluation (a run still training, or stopped early, is skipped
+    with a message)."""
+    runs = []
+    for last in sorted(root.glob(f"*/seed*/{LAST}")):
+        if not re.fullmatch(r"seed\d+", last.parent.name):
+            continue
+        payload = load_checkpoint(last, kind="training")
+        exp, c = SimpleNamespace(**payload["config"]["experiment"]), payload["counters"]
+        evaluated = any(e.get("frames") == c["frames"] for e in payload.get("evaluations", []))
+        if not (Schedule(exp).finished(c["frames"], c["episodes"], c["seconds"]) and evaluated):
+            log(f"skipped {last}: not finished ({c['frames']} frames, {c['episodes']} episodes)")
+            continue
+        runs.append(last)
+    return runs
 
 
 def ship_collection(runs: list[Path], dest: Path, reading: str, title: str, source: str,
@@ -71,14 +86,14 @@ def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_
     ``<runs>/<paper_experiment>/<reading>/...`` to ``<paper_recipe_dir>/<policy>/seed<k>.pt``,
     and each further experiment of ``collections`` (experiment -> folder, e.g. ``mixed``) to
     ``<checkpoints>/<reading>/<folder>/<policy>/seed<k>.pt``."""
-    fast = _finished_runs(runs_dir / experiment / reading)
-    paper = _finished_runs(runs_dir / paper_experiment / reading)
+    fast = _finished_runs(runs_dir / experiment / reading, log)
+    paper = _finished_runs(runs_dir / paper_experiment / reading, log)
     shipped = (ship_collection(fast, checkpoints_dir / reading, reading, "Shipped checkpoints",
                                f"{runs_dir}/{experiment}/{reading}/", log)
                + ship_collection(paper, paper_recipe_dir, reading, "Shipped checkpoints of the paper's recipe",
                                  f"{runs_dir}/{paper_experiment}/{reading}/", log))
     for other, folder in (collections or {}).items():
-        runs = _finished_runs(runs_dir / other / reading)
+        runs = _finished_runs(runs_dir / other / reading, log)
         shipped += ship_collection(runs, checkpoints_dir / reading / folder, reading,
                                    f"Shipped checkpoints of experiment={other}", f"{runs_dir}/{other}/{reading}/", log)
     return shipped

@@ -1,0 +1,43 @@
+"""make ship-checkpoints (run/shipping.py): finished runs only, each collection in its folder
+with its MANIFEST, files of the earlier flat layout moved into place."""
+
+import shutil
+
+from flock_torchrl.policies.checkpoint import load_checkpoint
+from flock_torchrl.run import trainer
+from flock_torchrl.run.shipping import ship_checkpoints
+from flock_torchrl.run.trainer import make_train_config, train
+
+
+def tiny_run(runs, experiment_folder, seed, **overrides):
+    cfg = make_train_config("policy3_g", "tiny", ["scenario.max_steps=30", "progress=false", f"seed={seed}",
+                                                  "experiment.eval_every_frames=0", "experiment.eval_episodes=1",
+                                                  *(f"{k}={v}" for k, v in overrides.items())])
+    return train(cfg, runs / experiment_folder / "paper_fit" / "policy3_g" / f"seed{seed}")
+
+
+def test_only_finished_runs_are_shipped_into_their_collections(tmp_path, monkeypatch):
+    runs, ckpts = tmp_path / "runs", tmp_path / "checkpoints"
+    tiny_run(runs, "tiny", 0, **{"experiment.max_frames": 32})
+    tiny_run(runs, "mixed", 0, **{"experiment.max_frames": 32})
+    # A run stopped before its budget (as a killed or interrupted run is) stays behind.
+    monkeypatch.setattr(trainer.Schedule, "finished", lambda self, frames, episodes, seconds: frames >= 16)
+    stopped = tiny_run(runs, "tiny", 1, **{"experiment.max_frames": 64})
+    monkeypatch.undo()
+    assert stopped.frames < 64
+    # A file of the earlier flat layout in the paper recipe's folder moves to <policy>/seed<k>.pt.
+    recipe = ckpts / "paper_fit" / "paper_recipe"
+    recipe.mkdir(parents=True)
+    shutil.copy(runs / "tiny" / "paper_fit" / "policy3_g" / "seed0" / "last.pt", tmp_path / "legacy.pt")
+    from flock_torchrl.policies.checkpoint import export_policy
+    export_policy(tmp_path / "legacy.pt", recipe / "policy3_g_seed7.pt")
+    said = []
+    shipped = ship_checkpoints("paper_fit", "tiny", runs, ckpts, "paper", recipe, log=said.append,
+                               collections={"mixed": "mixed"})
+    assert shipped == [ckpts / "paper_fit" / "policy3_g" / "seed0.pt", ckpts / "paper_fit" / "mixed" / "policy3_g" / "seed0.pt"]
+    assert any(line.startswith("skipped") and "seed1" in line for line in said), said
+    assert not (ckpts / "paper_fit" / "policy3_g" / "seed1.pt").exists()
+    assert (recipe / "policy3_g" / "seed7.pt").is_file() and not (recipe / "policy3_g_seed7.pt").exists()
+    for folder in (ckpts / "paper_fit", ckpts / "paper_fit" / "mixed", recipe):
+        assert "| Policy3-G |" in (folder / "MANIFEST.md").read_text(), folder
+    assert load_checkpoint(shipped[1], kind="policy")["meta"]["experiment"] == "tiny"
