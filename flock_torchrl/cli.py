@@ -191,13 +191,21 @@ def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
 
 # -- ship, tune, benchmark
 def _prepare_ship(cfg: ShipConfig, out: Path) -> None:
-    folders = [Path(cfg.runs_dir) / e / cfg.scenario.reading for e in (cfg.experiment, cfg.paper_experiment)]
-    if not any(f.is_dir() for f in folders):
-        raise AppError(f"no runs to ship under {' or '.join(map(str, folders))}")
+    if not Path(cfg.runs_dir).is_dir():
+        raise ConfigError("runs_dir", f"{cfg.runs_dir} is not a folder of runs")
+
+
+def _ship_folders(cfg: ShipConfig) -> list[Path]:
+    return [Path(cfg.runs_dir) / e / cfg.scenario.reading
+            for e in (cfg.experiment, cfg.paper_experiment, *cfg.collections)]
 
 
 def _run_ship(cfg: ShipConfig, out: Path) -> None:
     from .run.shipping import ship_checkpoints
+
+    if not any(f.is_dir() for f in _ship_folders(cfg)):  # nothing trained under this reading: say so
+        _say(f"nothing to ship under {', '.join(map(str, _ship_folders(cfg)))}")
+        return
 
     ship_checkpoints(cfg.scenario.reading, cfg.experiment, Path(cfg.runs_dir), Path(cfg.checkpoints_dir),
                      cfg.paper_experiment, Path(cfg.paper_recipe_dir), log=_say, collections=dict(cfg.collections))
