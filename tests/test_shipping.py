@@ -41,3 +41,11 @@ def test_only_finished_runs_are_shipped_into_their_collections(tmp_path, monkeyp
     for folder in (ckpts / "paper_fit", ckpts / "paper_fit" / "mixed", recipe):
         assert "| Policy3-G |" in (folder / "MANIFEST.md").read_text(), folder
     assert load_checkpoint(shipped[1], kind="policy")["meta"]["experiment"] == "tiny"
+
+
+def test_exporting_the_same_run_twice_gives_the_same_bytes(tmp_path):
+    from flock_torchrl.policies.checkpoint import export_policy
+
+    run = tiny_run(tmp_path / "runs", "tiny", 0, **{"experiment.max_frames": 16})
+    a, b = export_policy(run.checkpoint, tmp_path / "a.pt"), export_policy(run.checkpoint, tmp_path / "sub" / "b.pt")
+    assert a.read_bytes() == b.read_bytes()

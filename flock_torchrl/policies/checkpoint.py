@@ -29,7 +29,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from ..config import ScenarioConfig, saved_scenario
-from ..io import atomic_write
+from ..io import write_bytes
 from .models import ACTION, OBS, make_actor
 
 FORMAT_VERSION = 2
@@ -58,7 +58,9 @@ def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike, kind: str)
     data = _serialise(payload)
     envelope = {"format": FORMAT, "kind": kind, "sha256": hashlib.sha256(data).hexdigest(),
                 "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
-    return atomic_write(path, lambda tmp: torch.save(envelope, tmp))
+    # Serialised in memory, not to the temporary file: torch names the archive inside after the
+    # file it writes, so writing the temporary file directly would make every export's bytes differ.
+    return write_bytes(path, _serialise(envelope))
 
 
 def resolve_path(path: str | os.PathLike) -> Path:
