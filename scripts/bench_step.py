@@ -18,6 +18,7 @@ import time
 import torch
 
 from flock_torchrl import FlockingEnv
+from flock_torchrl.report.benchmark import paired  # best of alternated rounds, after a warm-up
 from flock_torchrl.world.state import STATE_KEYS
 
 
@@ -60,20 +61,6 @@ def vmas_stepper(num_envs: int, steps: int):
         for _ in range(steps):
             env.step(td)
     return go
-
-
-def paired(candidates: dict, rounds: int) -> dict[str, float]:
-    """Best seconds of one call of each candidate over ``rounds`` alternated rounds (after a warm-up)."""
-    for fn in candidates.values():
-        fn()
-        fn()
-    best = {name: math.inf for name in candidates}
-    for _ in range(rounds):
-        for name, fn in candidates.items():
-            start = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - start)
-    return best
 
 
 def batch_table(batches, rounds: int, scenario: str, policy: str, api: str, vmas: bool) -> None:

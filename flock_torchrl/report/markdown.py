@@ -107,6 +107,12 @@ def _percent(value: Any) -> str:
     return "—" if math.isnan(value) else f"{100 * value:.1f}"
 
 
+def _table3_cells(r: Mapping[str, Any]) -> str:
+    """The summary's Table III cells of one row: success, safe success, d_min_uav, d_min_obs, d_c, t_goal."""
+    return (f"{_pair(r, 'success_rate', 1, 100)} | {_percent(r.get('safe_success_rate'))} | {_pair(r, 'd_min_uav')} | "
+            f"{_pair(r, 'd_min_obs')} | {_pair(r, 'd_c')} | {_pair(r, 't_goal', 1)}")
+
+
 def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: str, score: Fidelity,
                      paper_recipe: Sequence[Mapping[str, Any]] | None = None,
                      paper_score: Fidelity | None = None) -> str:
@@ -118,9 +124,7 @@ def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: s
                   "| policy | success % | safe_success % | d_min_uav (m) | d_min_obs (m) | d_c (m) | t_goal (s) |",
                   "|---|---|---|---|---|---|---|"]
         for r in rows[3]:
-            lines.append(f"| {r['policy']}{' †' if is_extra_row(r) else ''} | {_pair(r, 'success_rate', 1, 100)} | "
-                         f"{_percent(r.get('safe_success_rate'))} | {_pair(r, 'd_min_uav')} | "
-                         f"{_pair(r, 'd_min_obs')} | {_pair(r, 'd_c')} | {_pair(r, 't_goal', 1)} |")
+            lines.append(f"| {r['policy']}{' †' if is_extra_row(r) else ''} | {_table3_cells(r)} |")
         lines.append("")
         if any(is_extra_row(r) for r in rows[3]):
             lines += [f"† {EXTRA_NOTE}", ""]
@@ -133,9 +137,7 @@ def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: s
         for r in paper_recipe:
             if str(r.get("note", "")).startswith("not trained"):
                 continue
-            lines.append(f"| {r['policy']} | {r.get('n_checkpoints') or 1} | {_pair(r, 'success_rate', 1, 100)} | "
-                         f"{_percent(r.get('safe_success_rate'))} | {_pair(r, 'd_min_uav')} | "
-                         f"{_pair(r, 'd_min_obs')} | {_pair(r, 'd_c')} | {_pair(r, 't_goal', 1)} |")
+            lines.append(f"| {r['policy']} | {r.get('n_checkpoints') or 1} | {_table3_cells(r)} |")
         lines.append("")
         lines += claims_markdown(paper_recipe, "under the paper's recipe")
     if 4 in rows:
