@@ -72,8 +72,8 @@ def test_a_mixed_run_trains_resumes_exactly_and_flies_any_size(tmp_path):
 
     rows = scaling("policy3_g", "paper_fit", [4], 2, others=[str(whole.checkpoint)], out_dir=tmp_path / "scaling",
                    log=lambda _: None)
-    assert [(r["policy"], r["trained_sizes"]) for r in rows] == [("Policy3-G", "5"), ("Policy3-G [tiny]", "3+6")]
-    assert "| Policy3-G [tiny] | 3+6 | 4 |" in (tmp_path / "scaling" / "scaling.md").read_text()
+    assert [(r["policy"], r["trained_sizes"]) for r in rows] == [("Policy3-G", "5"), ("Policy3-G [tiny, seed 0]", "3+6")]
+    assert "| Policy3-G [tiny, seed 0] | 3+6 | 4 |" in (tmp_path / "scaling" / "scaling.md").read_text()
 
 
 @pytest.mark.parametrize("overrides, words", [

@@ -51,7 +51,7 @@ def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100
     rows = []
     for k, handle in enumerate(handles):
         experiment, trained = training_of(handle)
-        label = f"{handle.name} [{experiment}]" if k else handle.name
+        label = f"{handle.name} [{experiment}, seed {handle.seed}]" if k else handle.name
         for n in sizes:
             start = time.perf_counter()
             result = evaluate_handle(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
