@@ -130,6 +130,18 @@ def test_claims_by_hand():
     assert list(got.values()) == [(0, 1), (2, 3), (1, 3), (0, 1), (0, 1), (1, 2)]
     table = "\n".join(claims_markdown(rows))
     assert "| 2 of 3 |" in table and "Policy4-G 95.0 / 65.4" in table
+    # A table of some policies (the paper recipe's): ours counts what it can. Policy1 0.984 above
+    # Policy1-G 0.95 (0 of the 1 pair left); Policy3-G's 1.727 m above both 0.001 m (holds, and
+    # above 1 m); Policy4-G, Policy5-G and Policy2 missing: no verdict.
+    some = {"Policy1": {"success_rate": 0.984, "d_min_uav": 0.001, "d_c": 0.9},
+            "Policy1-G": {"success_rate": 0.95, "d_min_uav": 0.001, "d_c": 0.5},
+            "Policy3-G": {"success_rate": 0.99, "d_min_uav": 1.727, "d_c": 3.6}}
+    verdicts = claim_verdicts(comparison_rows(3, {(n,): v for n, v in some.items()}))
+    assert [v["ours"] for v in verdicts] == [(1, 1), (1, 1), (0, 1), None, None, None]
+    assert [v["ours_partial"] for v in verdicts] == [True, True, True, False, False, False]
+    assert all(v["paper"][0] == v["paper"][1] for v in verdicts)   # the paper's side as stated
+    assert "| 0 of 1 (of those evaluated) |" in "\n".join(claims_markdown(comparison_rows(3, {(n,): v for n, v in
+                                                                                              some.items()})))
 
 
 def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):

@@ -127,25 +127,42 @@ CLAIMS = (
 )
 
 
+def _restricted(claim: Claim, evaluated: set[str]) -> tuple[tuple[str, ...], ...] | None:
+    """The claim's groups cut down to the policies a table evaluated (a table of only some
+    policies, e.g. the paper recipe's): the pairs whose both sides are there, or each group's
+    policies that are there; ``None`` when no comparison is left."""
+    groups = claim.groups
+    if claim.compare is _pairs_below:
+        pairs = [(a, b) for a, b in zip(*groups) if a in evaluated and b in evaluated]
+        return tuple(zip(*pairs)) if pairs else None
+    if claim.compare is _lowest:
+        return (groups[0], tuple(n for n in groups[1] if n in evaluated)) if groups[0][0] in evaluated else None
+    kept = tuple(tuple(n for n in g if n in evaluated) for g in groups)
+    return kept if all(kept) else None
+
+
 def claim_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """For each of :data:`CLAIMS`: how many of its comparisons hold in the paper's Table III and
-    in ours, with the values compared. Rows missing a policy give ``None`` for that side."""
+    in ours, with the values compared. Where our table lacks some policies, ours counts the
+    comparisons among those it has (``ours_partial``); none left gives ``None``."""
     by_name = {r["policy"]: r for r in rows if not is_extra_row(r)}
     evaluated = {n for n, r in by_name.items() if not math.isnan(as_float(r.get("success_rate")))}
     out = []
     for claim in CLAIMS:
-        groups = claim.groups
-        if claim.compare is _lowest:  # "lowest of the learned policies": of those this table holds
-            groups = (groups[0], tuple(n for n in groups[1] if n in evaluated or n == groups[0][0]))
-        names = list(dict.fromkeys(n for g in groups for n in g))
-        verdict: dict[str, Any] = {"claim": claim.text, "metric": claim.metric}
-        for side, column in (("paper", f"{claim.metric}_paper"), ("ours", claim.metric)):
-            values = {n: as_float(by_name[n].get(column)) if n in by_name else math.nan for n in names}
-            if any(math.isnan(v) for v in values.values()):
-                verdict[side], verdict[f"{side}_values"] = None, values
-                continue
-            verdict[side] = claim.compare(groups, values.__getitem__)
-            verdict[f"{side}_values"] = values
+        names = list(dict.fromkeys(n for g in claim.groups for n in g))
+        verdict: dict[str, Any] = {"claim": claim.text, "metric": claim.metric, "ours_partial": False}
+        paper = {n: as_float(by_name[n].get(f"{claim.metric}_paper")) if n in by_name else math.nan for n in names}
+        ours = {n: as_float(by_name[n].get(claim.metric)) if n in evaluated else math.nan for n in names}
+        verdict["paper_values"], verdict["ours_values"] = paper, ours
+        # The paper's side over the claim as stated (its "lowest" over all learned policies).
+        verdict["paper"] = None if any(math.isnan(v) for v in paper.values()) else claim.compare(
+            claim.groups, paper.__getitem__)
+        groups = _restricted(claim, evaluated)
+        verdict["ours"] = None if groups is None else claim.compare(groups, ours.__getitem__)
+        if claim.compare is _lowest:  # "lowest of the learned policies" means of those the table holds
+            verdict["ours_partial"] = False
+        else:
+            verdict["ours_partial"] = groups is not None and groups != claim.groups
         out.append(verdict)
     return out
 

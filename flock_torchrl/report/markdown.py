@@ -20,19 +20,22 @@ from .reference import KEY_COLUMNS, ROMAN, TABLE_NUMBERS, TITLES, as_float, read
 
 def claims_markdown(rows: Sequence[Mapping[str, Any]], recipe: str = "") -> list[str]:
     """The claims as a markdown table: holds in k of n comparisons, paper and ours, with values."""
-    def fmt(v: Any) -> str:
-        return "—" if v is None else ("holds" if v[0] == v[1] else f"{v[0]} of {v[1]}")
+    def fmt(v: Any, partial: bool = False) -> str:
+        if v is None:
+            return "—"
+        return ("holds" if v[0] == v[1] else f"{v[0]} of {v[1]}") + (" (of those evaluated)" if partial else "")
 
     where = f", {recipe}" if recipe else ""
     lines = [f"**The paper's claims, on Table III{where}** (comparisons that hold, paper / ours; values ours / paper; "
-             "— where a policy is missing):", "",
+             "— where no comparison can be made; \"of those evaluated\": among the policies this table has):", "",
              "| claim | paper | ours | values |", "|---|---|---|---|"]
     for v in claim_verdicts(rows):
         scale, digits = (100, 1) if v["metric"] == "success_rate" else (1, 3)
         values = ", ".join(
             f"{n} {scale * v['ours_values'][n]:.{digits}f} / {scale * v['paper_values'][n]:.{digits}f}"
             for n in v["ours_values"])
-        lines.append(f"| {v['claim']} | {fmt(v['paper'])} | {fmt(v['ours'])} | {v['metric']}: {values} |")
+        lines.append(f"| {v['claim']} | {fmt(v['paper'])} | {fmt(v['ours'], v['ours_partial'])} | "
+                     f"{v['metric']}: {values} |")
     return lines + [""]
 
 
