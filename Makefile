@@ -53,9 +53,10 @@ train-paper: $(STAMP)
 		resume=auto $(R_ARG)
 
 # The paper's recipe for the policies Table III's claims rest on (issue 19), under paper_fit:
-# seed 0 of seven policies, then seeds 1 and 2 of Policy3-G, 4-G and 5-G; two single-threaded
-# runs at a time (about 3.5 hours each here), each resuming where it stopped (resume=auto).
-PAPER_RUNS := policy1:0 policy1_g:0 policy2:0 policy2_g:0 policy3:0 policy3_g:0 policy4_g:0 policy5_g:0 \
+# seed 0 of seven policies (Policy3-G's seed 0 is `make train-paper`), then seeds 1 and 2 of
+# Policy3-G, 4-G and 5-G; two single-threaded runs at a time (about 3.5 hours each here), each
+# resuming where it stopped and a finished one doing nothing (resume=auto).
+PAPER_RUNS := policy1:0 policy1_g:0 policy2:0 policy2_g:0 policy3:0 policy4_g:0 policy5_g:0 \
               policy3_g:1 policy4_g:1 policy5_g:1 policy3_g:2 policy4_g:2 policy5_g:2
 train-paper-all: $(STAMP)
 	printf '%s\n' $(PAPER_RUNS) | tr ':' ' ' | xargs -P 2 -n 2 sh -c 'OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py \
