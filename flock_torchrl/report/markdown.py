@@ -31,9 +31,10 @@ def claims_markdown(rows: Sequence[Mapping[str, Any]], recipe: str = "") -> list
              "| claim | paper | ours | values |", "|---|---|---|---|"]
     for v in claim_verdicts(rows):
         scale, digits = (100, 1) if v["metric"] == "success_rate" else (1, 3)
-        values = ", ".join(
-            f"{n} {scale * v['ours_values'][n]:.{digits}f} / {scale * v['paper_values'][n]:.{digits}f}"
-            for n in v["ours_values"])
+        def num(x: float) -> str:
+            return "—" if math.isnan(x) else f"{scale * x:.{digits}f}"
+
+        values = ", ".join(f"{n} {num(v['ours_values'][n])} / {num(v['paper_values'][n])}" for n in v["ours_values"])
         lines.append(f"| {v['claim']} | {fmt(v['paper'])} | {fmt(v['ours'], v['ours_partial'])} | "
                      f"{v['metric']}: {values} |")
     return lines + [""]
