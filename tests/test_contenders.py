@@ -47,10 +47,15 @@ def test_a_contender_from_an_import_path_with_arguments_is_evaluated_and_in_tabl
     proc = run_script("evaluate.py", "+contender={_target_: mylab.ctl.make, name: Cautious, near: 0.8}",
                       "scenario=s2", "episodes=2", f"hydra.run.dir={tmp_path / 'ev'}", cwd=tmp_path, **env)
     assert "Cautious on s2" in proc.stdout
-    run_script("reproduce.py", "table=4", "episodes=2", "only=[Policy-MA]", "episodes_csv=false",
-               "contenders=[mylab.ctl.make]", f"hydra.run.dir={tmp_path / 't4'}", cwd=tmp_path, **env)
-    rows = rows_of(tmp_path / "t4" / "table4.csv")
-    assert sorted(r["scenario"] for r in rows if r["policy"] == "ctl") == ["S1", "S2", "S3", "S4", "S5"]
+    # Table IV (every scenario) and Table III, an import path and a checkpoint each.
+    for table, only, expect in ((4, "Policy-MA", ["S1", "S2", "S3", "S4", "S5"]), (3, "Policy-OP", [None])):
+        out = tmp_path / f"t{table}"
+        run_script("reproduce.py", f"table={table}", "episodes=2", f"only=[{only}]", "episodes_csv=false",
+                   f"contenders=[mylab.ctl.make,{CHECKPOINT}]", f"hydra.run.dir={out}", cwd=tmp_path, **env)
+        rows = rows_of(out / f"table{table}.csv")
+        for name in ("ctl", "Policy3-G (seed0)"):
+            mine = [r for r in rows if r["policy"] == name]
+            assert sorted(r.get("scenario") for r in mine) == expect and all(r["extra"] for r in mine), (table, name)
 
 
 @pytest.mark.parametrize("spec, words", [
