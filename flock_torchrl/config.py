@@ -686,7 +686,7 @@ class WorldApp(Schema):
     scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
     eval_seed: int = MISSING                 # the evaluation seed of every policy (section 5)
     checkpoints_dir: str = MISSING           # shipped checkpoints: <dir>/<reading>/<policy>/seed<k>.pt
-    paper_recipe_dir: str = MISSING          # the paper recipe's shipped checkpoints (<policy>_seed<k>.pt)
+    paper_recipe_dir: str = MISSING          # the paper recipe's shipped checkpoints (<policy>/seed<k>.pt)
 
     def _check_world(self) -> None:
         self.scenario.check()
