@@ -203,8 +203,9 @@ def _ship_folders(cfg: ShipConfig) -> list[Path]:
 def _run_ship(cfg: ShipConfig, out: Path) -> None:
     from .run.shipping import ship_checkpoints
 
-    if not any(f.is_dir() for f in _ship_folders(cfg)):  # nothing trained under this reading: say so
-        _say(f"nothing to ship under {', '.join(map(str, _ship_folders(cfg)))}")
+    folders = _ship_folders(cfg)
+    if not any(f.is_dir() for f in folders):  # nothing trained under this reading: say so
+        _say(f"nothing to ship under {', '.join(map(str, folders))}")
         return
 
     ship_checkpoints(cfg.scenario.reading, cfg.experiment, Path(cfg.runs_dir), Path(cfg.checkpoints_dir),

@@ -151,8 +151,8 @@ def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") ->
     scenario = dict(options.pop("scenario", {}) or {})
     unknown = sorted(set(scenario) - set(POLICY_SCENARIO_FIELDS))
     if unknown:
-        raise ConfigError("contenders", f"{name}: scenario may set only {', '.join(POLICY_SCENARIO_FIELDS)}; "
-                                        f"got {unknown}")
+        raise ConfigError(key, f"{name}: scenario may set only {', '.join(POLICY_SCENARIO_FIELDS)}; "
+                               f"got {unknown}")
     extras = tuple(options.pop("extras", ()) or ())
     # keyword arguments as given; a nested mapping with its own _target_ is built by Hydra
     kwargs = {k: instantiate(v) if isinstance(v, Mapping) and "_target_" in v else v for k, v in options.items()}

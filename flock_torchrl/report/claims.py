@@ -150,7 +150,7 @@ def claim_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     out = []
     for claim in CLAIMS:
         names = list(dict.fromkeys(n for g in claim.groups for n in g))
-        verdict: dict[str, Any] = {"claim": claim.text, "metric": claim.metric, "ours_partial": False}
+        verdict: dict[str, Any] = {"claim": claim.text, "metric": claim.metric}
         paper = {n: as_float(by_name[n].get(f"{claim.metric}_paper")) if n in by_name else math.nan for n in names}
         ours = {n: as_float(by_name[n].get(claim.metric)) if n in evaluated else math.nan for n in names}
         verdict["paper_values"], verdict["ours_values"] = paper, ours
@@ -159,10 +159,8 @@ def claim_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
             claim.groups, paper.__getitem__)
         groups = _restricted(claim, evaluated)
         verdict["ours"] = None if groups is None else claim.compare(groups, ours.__getitem__)
-        if claim.compare is _lowest:  # "lowest of the learned policies" means of those the table holds
-            verdict["ours_partial"] = False
-        else:
-            verdict["ours_partial"] = groups is not None and groups != claim.groups
+        # "lowest of the learned policies" means of those the table holds: never partial
+        verdict["ours_partial"] = claim.compare is not _lowest and groups is not None and groups != claim.groups
         out.append(verdict)
     return out
 

@@ -62,5 +62,16 @@ class Schedule:
                     or (exp.max_episodes and episodes >= exp.max_episodes)
                     or (exp.max_minutes and seconds >= 60 * exp.max_minutes))
 
+    def done(self, counters: dict, evaluations: list) -> bool:
+        """A run that spent its budget and ran its final evaluation (the last one at its last
+        frame): what resumes to a no-op and what ``make ship-checkpoints`` ships."""
+        return (self.finished(counters["frames"], counters["episodes"], counters["seconds"])
+                and evaluated_at_end(counters, evaluations))
 
-__all__ = ["Periodic", "Schedule", "next_multiple"]
+
+def evaluated_at_end(counters: dict, evaluations: list) -> bool:
+    """Whether the last evaluation is of the last frame (a finished run's final one)."""
+    return bool(evaluations) and evaluations[-1]["frames"] == counters["frames"]
+
+
+__all__ = ["Periodic", "Schedule", "evaluated_at_end", "next_multiple"]

@@ -26,9 +26,8 @@ def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Path]
         if not re.fullmatch(r"seed\d+", last.parent.name):
             continue
         payload = load_checkpoint(last, kind="training")
-        exp, c = SimpleNamespace(**payload["config"]["experiment"]), payload["counters"]
-        evaluated = any(e.get("frames") == c["frames"] for e in payload.get("evaluations", []))
-        if not (Schedule(exp).finished(c["frames"], c["episodes"], c["seconds"]) and evaluated):
+        c = payload["counters"]
+        if not Schedule(SimpleNamespace(**payload["config"]["experiment"])).done(c, payload.get("evaluations", [])):
             log(f"skipped {last}: not finished ({c['frames']} frames, {c['episodes']} episodes)")
             continue
         runs.append(last)

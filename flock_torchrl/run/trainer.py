@@ -51,7 +51,7 @@ from ..world.sensors import observation_size, state_size
 from ..world.spawn import check_spawn_feasible
 from .run_folder import (EpisodeLog, RunLock, clean_stale_temporaries, logger_hparams, make_logger, resume_command,
                          truncate_scalar_logs, write_run_config)
-from .schedule import Schedule
+from .schedule import Schedule, evaluated_at_end
 
 # One row per finished training episode (Fig. 4 reads episode, reward).
 EPISODE_COLUMNS = ("episode", "frames", "reward", "success", "safe_success", *CELL_METRICS, "steps")
@@ -432,7 +432,7 @@ class _Training:
             self.evaluations = list(payload.get("evaluations", []))
         schedule = Schedule(exp).start(self.counters["frames"])
         finished = schedule.finished(self.counters["frames"], self.counters["episodes"], self.counters["seconds"])
-        if finished and self._evaluated():
+        if schedule.done(self.counters, self.evaluations):
             return self._result(self.ckpt_path)  # a finished run resumes to a no-op
         with Signals() as signals:
             self._build(payload)
@@ -608,14 +608,10 @@ class _Training:
         return row
 
     # ---------------------------------------------------------------- the end
-    def _evaluated(self) -> bool:
-        """Whether the last evaluation is of the last frame (a finished run's final one)."""
-        return bool(self.evaluations) and self.evaluations[-1]["frames"] == self.counters["frames"]
-
     def _finish(self, signals: Signals) -> TrainResult:
         """Every run ends with an evaluation of what it ships, after a checkpoint: a signal
         during it stops at once, and the resumed run evaluates before it counts as finished."""
-        if not self._evaluated():
+        if not evaluated_at_end(self.counters, self.evaluations):
             self._save()
             signals.abort = True
             try:
