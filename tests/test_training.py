@@ -194,3 +194,13 @@ def test_compiled_learner_is_its_eager_twin():
     state = learners[1].state_dict()
     learners[0].load_state_dict(state)
     assert "_target_entropy" in state["loss"]
+
+
+def test_a_compiled_runs_first_update_is_booked_as_compile(tmp_path):
+    """The time split keeps torch.compile's work apart from the updates it speeds up (the
+    paper-loop benchmark leaves it out); an eager run books none."""
+    compiled = train(tiny("policy3_g", "compile=true", "experiment.max_frames=64"), tmp_path / "compiled")
+    eager = train(tiny("policy3_g", "experiment.max_frames=64"), tmp_path / "eager")
+    assert compiled.updates > 1 and compiled.split["compile"] > 0 and compiled.split["update"] > 0
+    assert eager.split["compile"] == 0 and eager.split["update"] > 0
+    assert "compile" in compiled.split_line()

@@ -344,8 +344,9 @@ class _Training:
         self.ckpt_path = run_dir / LAST
         self.counters = {"frames": 0, "episodes": 0, "updates": 0, "iterations": 0, "seconds": 0.0}
         self.evaluations: list[dict[str, float]] = []
-        self.split = dict.fromkeys(("env", "collection", "buffer", "sampling", "update", "logging", "evaluation",
-                                    "checkpoints"), 0.0)
+        # "compile": a compiled learner's first update in this process, where torch.compile works.
+        self.split = dict.fromkeys(("env", "collection", "buffer", "sampling", "update", "compile", "logging",
+                                    "evaluation", "checkpoints"), 0.0)
         self.saved_frames = -1            # frames of the last checkpoint this process wrote
         self.start = time.perf_counter()
 
@@ -530,7 +531,7 @@ class _Training:
         if not learner.off_policy:  # one size (TrainConfig refuses mixed sizes on-policy)
             start = time.perf_counter()
             stats = learner.update(batches[0])
-            split["update"] += time.perf_counter() - start
+            split[self._update_bucket()] += time.perf_counter() - start
             return stats, 1
         start = time.perf_counter()
         for batch in batches:
@@ -545,11 +546,17 @@ class _Training:
                 t0 = time.perf_counter()
                 sample = self.buffer.sample().to(device)
                 t1 = time.perf_counter()
+                bucket = self._update_bucket()
                 stats = learner.update(sample)
                 split["sampling"] += t1 - t0
-                split["update"] += time.perf_counter() - t1
+                split[bucket] += time.perf_counter() - t1
                 n += 1
         return stats, n
+
+    def _update_bucket(self) -> str:
+        """Where an update's time goes: a compiled learner's first one in this process compiles."""
+        first = self.cfg.compile and not self.split["compile"]
+        return "compile" if first else "update"
 
     def _finished_episodes(self, batch: TensorDictBase) -> list[list[Any]]:
         """CSV rows for the episodes that ended in this batch (frames counted at batch end)."""
