@@ -52,17 +52,19 @@ def adam(groups: list[dict[str, Any]], device: torch.device) -> torch.optim.Adam
 LOSS_COMPILE_OPTIONS = {"cpp.simdlen": 1}
 
 
-def compiled(loss: torch.nn.Module, compile: bool):
-    """The loss module itself, or its ``torch.compile`` d forward. Compiled code draws its
-    random numbers (SAC's reparameterised actions) from torch's own generator, as eager code
-    does (``fallback_random``), so a seeded run samples the same actions either way."""
+def compiled(loss: torch.nn.Module, compile: bool, options: dict[str, Any] | None = None):
+    """The loss module itself, or its ``torch.compile`` d forward (inductor ``options``, default
+    :data:`LOSS_COMPILE_OPTIONS`). Compiled code draws its random numbers (SAC's
+    reparameterised actions) from torch's own generator, as eager code does
+    (``fallback_random``), so a seeded run samples the same actions either way."""
     if not compile:
         return loss
     import torch._inductor.config as inductor_config
 
     inductor_config.fallback_random = True
+    options = LOSS_COMPILE_OPTIONS if options is None else options
     return torch.compile(loss, options={"guard_filter_fn": torch.compiler.skip_guard_on_all_nn_modules_unsafe,
-                                        **LOSS_COMPILE_OPTIONS})
+                                        **options})
 
 
 def _clip(params, max_norm: float) -> None:

@@ -28,7 +28,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from ..config import algo_config, compose
 from ..io import write_text
-from ..policies.learners import SACLearner
+from ..policies.learners import SACLearner, compiled
 from ..policies.models import ACTION, LOG_PROB
 from ..run.trainer import TRANSITION_KEYS, agentwise_done
 from ..world.env import FlockingEnv
@@ -196,6 +196,9 @@ def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, re
         candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": SACLearner(env, cfg, "state")}
         if compile_loss:
             candidates["compiled"] = SACLearner(env, cfg, "state", compile=True)
+        if compile_loss and device == "cpu":  # inductor's default (vectorised) CPU kernels
+            vectorised = candidates["compiled, vectorised kernels"] = SACLearner(env, cfg, "state")
+            vectorised.loss_fn = compiled(vectorised.loss, True, options={})
 
         def run(learner) -> Callable[[], None]:
             def go() -> None:
@@ -213,6 +216,9 @@ def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, re
             if name in best:
                 rows.append(Row(f"SAC updates, batch {batch_uav} UAV transitions ({recipe}; {name} vs previous)",
                                 updates / best[name], updates / best["previous"], "updates/s"))
+        if compile_loss and device == "cpu":  # why the losses compile to scalar CPU kernels (learners.py)
+            rows.append(Row(f"SAC updates, batch {batch_uav} ({recipe}; scalar vs vectorised compiled kernels)",
+                            updates / best["compiled"], updates / best["compiled, vectorised kernels"], "updates/s"))
     return rows
 
 
