@@ -106,10 +106,11 @@ publish: $(STAMP)
 	done
 
 # The parts of publish that change when new checkpoints are shipped, alone: the paper
-# recipe's Table III (paper_fit) and the scaling table with the mixed-size policy.
+# recipe's Table III and Fig. 4 (paper_fit), and the scaling table with the mixed-size policy.
 publish-paper-recipe: $(STAMP)
 	$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=paper_fit \
 		hydra.run.dir=results/paper_fit
+	$(PYTHON) scripts/figures.py reading=paper_fit figs=[4] hydra.run.dir=figures/paper_fit
 
 publish-scaling: $(STAMP)
 	for r in literal paper_fit; do \
