@@ -126,7 +126,8 @@ def test_a_signal_while_starting_is_one_line(tmp_path):
     time.sleep(0.3)  # Python is still importing torch
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143 and "Traceback" not in err and err.startswith("stopped by SIGTERM")
+    assert proc.returncode == 143 and "Traceback" not in err and err.startswith("stopped by SIGTERM"), \
+        (proc.returncode, err)
     assert list(tmp_path.iterdir()) == []
 
 

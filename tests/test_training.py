@@ -204,3 +204,21 @@ def test_a_compiled_runs_first_update_is_booked_as_compile(tmp_path):
     assert compiled.updates > 1 and compiled.split["compile"] > 0 and compiled.split["update"] > 0
     assert eager.split["compile"] == 0 and eager.split["update"] > 0
     assert "compile" in compiled.split_line()
+
+
+def test_two_compiled_learners_of_different_sizes_share_a_process():
+    """A sweep's worker process (or this test session) compiles learners of several sizes: each
+    recompiles for its own shapes (static), where dynamic shapes broke TorchRL's vmapped twin Q."""
+    import dataclasses
+
+    from flock_torchrl.config import algo_config, compose
+    from flock_torchrl.policies.learners import SACLearner
+    from flock_torchrl.report.benchmark import replay_batches
+
+    env, batches = replay_batches(128, 2)
+    cfg = algo_config(compose("train", ["experiment=paper"]).algo)
+    for hidden in (64, 32):
+        learner = SACLearner(env, dataclasses.replace(cfg, hidden=hidden), "state", compile=True)
+        for batch in batches:
+            stats = learner.update(batch.clone())
+        assert torch.isfinite(stats["loss_qvalue"])

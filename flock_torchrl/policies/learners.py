@@ -63,8 +63,12 @@ def compiled(loss: torch.nn.Module, compile: bool, options: dict[str, Any] | Non
 
     inductor_config.fallback_random = True
     options = LOSS_COMPILE_OPTIONS if options is None else options
-    return torch.compile(loss, options={"guard_filter_fn": torch.compiler.skip_guard_on_all_nn_modules_unsafe,
-                                        **options})
+    # Dynamo's full guards and static shapes: a second learner of another size in the same process
+    # (a sweep's worker, the tests) must recompile for its own shapes. Skipping the guards on
+    # module attributes (as this did before) let it run the first learner's graph; left dynamic,
+    # dynamo retraces TorchRL's vmapped twin Q with a symbolic hidden size and fails. The guards
+    # cost no measurable time per update here.
+    return torch.compile(loss, dynamic=False, options=options)
 
 
 def _clip(params, max_norm: float) -> None:
