@@ -22,6 +22,7 @@ cannot (files, checkpoints, the swarm's spawn, memory) and a ``run``.
 from __future__ import annotations
 
 import dataclasses
+import os
 import signal
 import sys
 from dataclasses import dataclass
@@ -321,8 +322,13 @@ class PreRunCheck(Callback):
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
+        _armed()
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check_sweep(config)
+        _armed()
+
+    def _check_sweep(self, config: DictConfig) -> None:
         _guard(lambda: _check_launcher(config))
         jobs = sweep_jobs(config)
         if jobs is None:  # not a list of values (an Optuna interval ...): each job checks itself
@@ -388,6 +394,7 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
 
         out = Path(HydraConfig.get().runtime.output_dir)
         obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
+        _armed()  # also where no PreRunCheck ran (a config without the callback)
         try:
             return _guard(lambda: APPS[app].run(obj, out))
         except TrainingInterrupted as exc:
@@ -399,25 +406,57 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
     return task
 
 
-def _early_signals() -> None:
-    """Until the app installs its own handlers: a stop signal ends the process with one line."""
-    from .run.trainer import STOP_SIGNALS, Stopped
+# Stop signals before the run is checked are only noted: an exception raised at an arbitrary
+# bytecode inside Hydra's composition or OmegaConf can break their `finally` clean-ups and come
+# out as another error with a traceback (seen under load). Once the run is checked (PreRunCheck,
+# before anything is written), a noted signal stops the process, and later ones raise `Stopped`
+# at once (an evaluation or a table can take minutes; the trainer installs its own handlers).
+_NOTED: list[int] = []
+_MAIN_PID: list[int] = []
 
-    def stop(signum: int, frame: Any) -> None:
-        raise Stopped(signum)
+
+def _note(signum: int, frame: Any) -> None:
+    _NOTED.append(signum)
+
+
+def _stop(signum: int, frame: Any) -> None:
+    from .run.trainer import Stopped
+
+    raise Stopped(signum)
+
+
+def _early_signals() -> None:
+    """Until the run is checked: a stop signal is noted (see :func:`_armed`)."""
+    from .run.trainer import STOP_SIGNALS
 
     for signum in STOP_SIGNALS:
-        signal.signal(signum, stop)
+        signal.signal(signum, _note)
 
 
-def main(app: str) -> Any:
-    """Run the Hydra app ``app`` on ``sys.argv`` (a console script or ``scripts/<app>.py``)."""
+def _armed() -> None:
+    """The run is checked: stop on a noted signal, and at once on later ones (in the process
+    that started the app; a launcher's worker processes keep their own handlers)."""
+    from .run.trainer import STOP_SIGNALS, Stopped
+
+    if _MAIN_PID != [os.getpid()]:
+        return
+    if _NOTED:
+        raise Stopped(_NOTED[0])
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _stop)
+
+
+def main(app: str, noted: list[int] | None = None) -> Any:
+    """Run the Hydra app ``app`` on ``sys.argv`` (a console script or ``scripts/<app>.py``);
+    ``noted``: stop signals a script noted while it imported the package."""
     import hydra
 
     from .run.trainer import Stopped
 
+    _MAIN_PID[:] = [os.getpid()]
     try:
         _early_signals()
+        _NOTED.extend(noted or [])
         return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
     except Stopped as stop:
         print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "
@@ -425,9 +464,9 @@ def main(app: str) -> Any:
         raise SystemExit(128 + stop.signum) from None
 
 
-def train_main() -> Any:
+def train_main(noted: list[int] | None = None) -> Any:
     """``scripts/train.py`` / ``flock-train``."""
-    return main("train")
+    return main("train", noted)
 
 
 def evaluate_main() -> Any:

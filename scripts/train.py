@@ -7,19 +7,21 @@
 """
 
 import signal
-import sys
 
 
-def _stopped_early(signum, frame):
-    # A stop signal while Python loads torch and the package (seconds): nothing is written yet.
-    print(f"stopped by {signal.Signals(signum).name} while starting: nothing was written", file=sys.stderr,
-          flush=True)
-    raise SystemExit(128 + signum)
+_noted: list = []
+
+
+def _note(signum, frame):
+    # A stop signal while Python loads torch and the package (seconds) is noted, and the app
+    # stops on it once the run is checked, before anything is written: raised inside a library's
+    # import, it could leave that library half-built and surface as another error.
+    _noted.append(signum)
 
 
 if __name__ == "__main__":
     for _signum in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", signal.SIGTERM)):
-        signal.signal(_signum, _stopped_early)
+        signal.signal(_signum, _note)
     from flock_torchrl.cli import train_main
 
-    train_main()
+    train_main(_noted)
