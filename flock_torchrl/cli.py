@@ -412,7 +412,7 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
 # before anything is written), a noted signal stops the process, and later ones raise `Stopped`
 # at once (an evaluation or a table can take minutes; the trainer installs its own handlers).
 _NOTED: list[int] = []
-_MAIN_PID: list[int] = []
+_MAIN_PID = 0  # the process that called main(); a launcher's workers keep their own handlers
 
 
 def _note(signum: int, frame: Any) -> None:
@@ -438,7 +438,7 @@ def _armed() -> None:
     that started the app; a launcher's worker processes keep their own handlers)."""
     from .run.trainer import STOP_SIGNALS, Stopped
 
-    if _MAIN_PID != [os.getpid()]:
+    if _MAIN_PID != os.getpid():
         return
     if _NOTED:
         raise Stopped(_NOTED[0])
@@ -453,10 +453,12 @@ def main(app: str, noted: list[int] | None = None) -> Any:
 
     from .run.trainer import Stopped
 
-    _MAIN_PID[:] = [os.getpid()]
+    global _MAIN_PID
+    _MAIN_PID = os.getpid()
+    _NOTED.clear()
     try:
         _early_signals()
-        _NOTED.extend(noted or [])
+        _NOTED.extend(noted or [])  # after the handlers move here, so none is lost between
         return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
     except Stopped as stop:
         print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "

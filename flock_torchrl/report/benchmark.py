@@ -250,7 +250,7 @@ def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[
             with tempfile.TemporaryDirectory() as tmp:
                 return train(cfg, tmp)
 
-        run(64)  # warm-up: the compiled step and loss are compiled here, not in the timed run
+        run(64)  # warm-up: the env step compiles here; the timed run books its loss's compilation apart
         result = run(frames)
         loop = sum(v for k, v in result.split.items() if k not in ("compile", "evaluation", "checkpoints"))
         rates[name] = result.updates / loop
