@@ -146,7 +146,8 @@ def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
 
     check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only,
-                       recipe=cfg.recipe, contenders=cfg.contenders)
+                       recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to,
+                       compare_tolerance=cfg.compare_tolerance)
 
 
 def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
@@ -156,7 +157,8 @@ def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     result = reproduce(cfg.table, cfg.scenario.reading, episodes=cfg.episodes, seed=cfg.seed, device=cfg.device,
                        checkpoints_dir=cfg.checkpoints_dir, out_dir=out, only=list(cfg.only) or None,
                        episodes_csv=cfg.episodes_csv, paper_recipe_dir=cfg.paper_recipe_dir,
-                       recipe=cfg.recipe, contenders=cfg.contenders, log=_say)
+                       recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to,
+                       compare_tolerance=cfg.compare_tolerance, log=_say)
     if result["failed"]:
         raise AppError(f"Table {cfg.table}: rows not evaluated: {', '.join(result['failed'])} (see above)")
 

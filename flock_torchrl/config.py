@@ -706,7 +706,7 @@ class TrainConfig(WorldApp):
     resume: str = MISSING                    # false | true | auto
     progress: bool = MISSING
     threads: int = MISSING
-    compile: bool = MISSING                  # torch.compile the learner's loss and the env's step
+    compile: Any = MISSING                   # false | true (the loss and the step) | step | loss: torch.compile
     objective: str = MISSING                 # what the app returns to a sweeper: a final-evaluation metric
     resumable: List[str] = field(default_factory=list)   # keys a resume may change (a trailing . = a group)
 
@@ -729,8 +729,19 @@ class TrainConfig(WorldApp):
         check_device("device", self.device)
         check_threads("threads", self.threads)
         choice("resume", str(self.resume).lower(), RESUME_MODES)
+        choice("compile", str(self.compile).lower(), COMPILE_MODES)
         choice("objective", self.objective, OBJECTIVES)
         return self._mark_checked()
+
+    @property
+    def compile_step(self) -> bool:
+        """``compile`` is ``true`` or ``step``: the env's step is compiled (``world/lanes.py``)."""
+        return str(self.compile).lower() in ("true", "step")
+
+    @property
+    def compile_loss(self) -> bool:
+        """``compile`` is ``true`` or ``loss``: the learner's loss is compiled."""
+        return str(self.compile).lower() in ("true", "loss")
 
     @property
     def train_scenario(self) -> ScenarioConfig:
@@ -755,6 +766,8 @@ class TrainConfig(WorldApp):
 
 
 RESUME_MODES = ("false", "true", "auto")
+# What `compile` may be: nothing, both, or one of the env's step and the learner's loss.
+COMPILE_MODES = ("false", "true", "step", "loss")
 # What the train app returns to a sweeper (Optuna, Ax): a metric of the run's final evaluation.
 OBJECTIVES = ("success_rate", "safe_success_rate", "return")
 
@@ -818,11 +831,16 @@ class ReproduceConfig(WorldApp):
     contenders: List[Any] = field(default_factory=list)  # the user's controllers, as extra rows
     recipe: str = MISSING                    # fast: checkpoints_dir; paper: paper_recipe_dir (Table III)
     episodes_csv: bool = MISSING
+    compare_to: Optional[str] = None         # a table CSV written before: also written side by side
+    compare_tolerance: Dict[str, float] = field(default_factory=dict)
 
     def check(self, prefix: str | None = None) -> "ReproduceConfig":
+        from .report.compare import check_tolerance
+
         self._check_world()
         choice("table", self.table, (3, 4, 5))
         choice("recipe", self.recipe, ("fast", "paper"))
+        check_tolerance(self.compare_tolerance)
         if self.recipe == "paper" and self.table != 3:
             _fail("recipe", "the paper recipe trained the policies of Table III only (table=3)")
         for i, spec in enumerate(self.contenders):

@@ -150,12 +150,20 @@ def test_unknown_names_and_wrong_types_fail_at_composition(override, key):
     ("scenario.n_uavs=0", "scenario.n_uavs"),
     ("seed=-1", "seed"),
     ("device=gpu0", "device"),
+    ("compile=steps", "compile"),
     ("+algo.lr_critc=1", "algo.lr_critc"),
 ])
 def test_bad_values_name_the_key(override, key):
     with pytest.raises(ConfigError) as info:
         check_train_config(make_train_config("policy3_g", "tiny", [override]))
     assert info.value.key == key
+
+
+@pytest.mark.parametrize("value, step, loss", [("false", False, False), ("true", True, True), ("step", True, False),
+                                               ("loss", False, True)])
+def test_compile_picks_the_step_the_loss_both_or_neither(value, step, loss):
+    cfg = check_train_config(make_train_config("policy3_g", "tiny", [f"compile={value}"]))
+    assert (cfg.compile_step, cfg.compile_loss) == (step, loss)
 
 
 def test_cuda_on_a_machine_without_it_is_a_config_error():

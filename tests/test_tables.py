@@ -181,3 +181,52 @@ def test_reproduce_app_checks_every_checkpoint_before_the_first_row(tmp_path):
     assert bad_key.returncode == 1 and "tabel" in bad_key.stderr
     bad_value = run_script("reproduce.py", "table=7", cwd=tmp_path, check=False)
     assert bad_value.returncode == 2 and bad_value.stderr.startswith("error: table: must be one of 3, 4, 5")
+
+
+def test_comparison_by_hand(tmp_path):
+    from flock_torchrl.report.compare import COMPARED, compare_rows, read_table, render_comparison
+
+    # A reference table: two rows and an extra row (never compared).
+    ref = [{"policy": "Policy1", "extra": "", **{m: 1.0 for m in COMPARED}, "success_rate": 0.950, "d_min_uav": 0.50},
+           {"policy": "Policy3-G", "extra": "", **{m: 1.0 for m in COMPARED}, "success_rate": 0.990, "d_min_uav": 1.50},
+           {"policy": "Policy3-G (paper recipe)", "extra": "paper recipe", **{m: 1.0 for m in COMPARED}}]
+    path = write_csv(tmp_path / "table3.csv", ["policy", "extra", *COMPARED], ref)
+    reference = read_table(path, 3)
+    assert sorted(reference) == [("Policy1",), ("Policy3-G",)]
+    new = [{"policy": "Policy1", "extra": "", "n_episodes": 500, **{m: 1.0 for m in COMPARED},
+            "success_rate": 0.958, "d_min_uav": 0.65},           # +0.8 pp within; +0.15 m outside 0.1 m
+           {"policy": "Policy3-G", "extra": "", "n_episodes": 500, **{m: 1.0 for m in COMPARED},
+            "success_rate": 0.975, "d_min_uav": 1.45},           # -1.5 pp outside 1 pp; -0.05 m within
+           {"policy": "Policy2", "extra": "", "n_episodes": 500, **{m: 1.0 for m in COMPARED}},  # not in the reference
+           {"policy": "Policy4-G", "extra": "", "n_episodes": ""}]                               # not evaluated
+    rows = compare_rows(3, reference, new, {"success_rate": 0.01, "d_min_uav": 0.1})
+    assert [r["policy"] for r in rows] == ["Policy1", "Policy3-G"]
+    p1, p3 = rows
+    assert p1["success_rate_delta"] == pytest.approx(0.008) and p1["success_rate_within"]
+    assert p1["d_min_uav_delta"] == pytest.approx(0.15) and not p1["d_min_uav_within"] and not p1["within"]
+    assert p3["success_rate_delta"] == pytest.approx(-0.015) and not p3["success_rate_within"]
+    assert p3["d_min_uav_within"] and not p3["within"]
+    assert compare_rows(3, reference, new, {"success_rate": 0.02, "d_min_uav": 0.2})[0]["within"]
+    text = render_comparison(3, rows, {"success_rate": 0.01, "d_min_uav": 0.1}, path, "new")
+    assert "0 of 2 rows within it" in text and "95.0 % / 95.8 % / +0.8 pp" in text and "0.500 / 0.650 / +0.150 ✗" in text
+
+
+def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
+    policy = goal_seeking_policy()
+    first = reproduce(3, "literal", episodes=3, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "a",
+                      policies={"Policy3-G": policy}, only=["Policy3-G"], log=lambda m: None, episodes_csv=False)
+    again = reproduce(3, "literal", episodes=3, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "b",
+                      policies={"Policy3-G": policy}, only=["Policy3-G"], log=lambda m: None, episodes_csv=False,
+                      compare_to=first["csv"], compare_tolerance={"success_rate": 0.0, "d_min_uav": 1e-5})
+    (row,) = again["comparison"]     # the same policy, episodes and seed: the same, up to the CSV's 6 digits
+    assert row["policy"] == "Policy3-G" and row["within"] and row["success_rate_delta"] == 0.0
+    assert abs(row["d_min_uav_delta"]) <= 1e-5 * abs(row["d_min_uav"])
+    assert (tmp_path / "b" / "table3_vs_reference.md").is_file() and (tmp_path / "b" / "table3_vs_reference.csv").is_file()
+    # A missing reference or an unknown column is refused before anything is evaluated.
+    out = tmp_path / "out"
+    proc = run_script("reproduce.py", "table=3", f"compare_to={tmp_path / 'nope.csv'}", f"hydra.run.dir={out}",
+                      cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: compare_to:") and not out.exists()
+    proc = run_script("reproduce.py", "table=3", "+compare_tolerance.speedy=1", f"hydra.run.dir={out}",
+                      cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: compare_tolerance.speedy:") and not out.exists()

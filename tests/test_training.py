@@ -206,6 +206,22 @@ def test_a_compiled_runs_first_update_is_booked_as_compile(tmp_path):
     assert "compile" in compiled.split_line()
 
 
+def test_compile_step_compiles_the_env_and_leaves_the_loss_eager():
+    """compile=step (make train-all): the training env steps through its compiled twin, the
+    learner's loss stays the eager module; compile=loss the other way round."""
+    import os
+
+    from flock_torchrl.config import TrainConfig
+    from flock_torchrl.policies.learners import make_learner
+    from flock_torchrl.run.trainer import _make_env
+
+    for mode, step, loss in (("step", True, False), ("loss", False, True)):
+        cfg = TrainConfig.from_config(tiny("policy3_g", f"compile={mode}"))
+        env = _make_env(cfg, 2, torch.device("cpu"), 0, os.getpid())
+        learner = make_learner(env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss)
+        assert env.compile_step is step and (learner.loss_fn is not learner.loss) is loss, mode
+
+
 def test_two_compiled_learners_of_different_sizes_share_a_process():
     """A sweep's worker process (or this test session) compiles learners of several sizes: each
     recompiles for its own shapes (static), where dynamic shapes broke TorchRL's vmapped twin Q."""

@@ -27,6 +27,7 @@ from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints
 from ..run.results import EvaluationResult
 from ..run.rollout import evaluate_handle
+from .compare import check_tolerance, read_table, write_comparison
 from .markdown import render_tables
 from .reference import (KEY_COLUMNS, PAPER_RECIPE_ROW, TABLE_NUMBERS, TableEntry, comparison_row, comparison_rows,
                         csv_columns, table_entries)
@@ -141,8 +142,13 @@ def _contender_key(table: int, entry: TableEntry, name: str) -> tuple[str, ...]:
 
 
 def check_table_inputs(table: int, reading: str, checkpoints_dir: str | Path, paper_recipe_dir: str | Path | None,
-                       only: Sequence[str] = (), recipe: str = "fast", contenders: Sequence[Any] = ()) -> None:
-    """Everything a table needs, checked before anything runs (:func:`plan`)."""
+                       only: Sequence[str] = (), recipe: str = "fast", contenders: Sequence[Any] = (),
+                       compare_to: str | Path | None = None, compare_tolerance: Mapping[str, float] | None = None) -> None:
+    """Everything a table needs, checked before anything runs (:func:`plan`; the reference
+    table of ``compare_to`` read, the tolerance checked)."""
+    if compare_to is not None:
+        read_table(compare_to, table)
+        check_tolerance(compare_tolerance or {})
     plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders)
 
 
@@ -150,7 +156,9 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
               checkpoints_dir: str | Path = "checkpoints", out_dir: str | Path = ".",
               policies: Mapping[str, Any] | None = None, only: Sequence[str] | None = None,
               episodes_csv: bool = True, paper_recipe_dir: str | Path | None = None, recipe: str = "fast",
-              contenders: Sequence[Any] = (), log: Callable[[str], None] = print) -> dict[str, Any]:
+              contenders: Sequence[Any] = (), compare_to: str | Path | None = None,
+              compare_tolerance: Mapping[str, float] | None = None,
+              log: Callable[[str], None] = print) -> dict[str, Any]:
     """Evaluate everything a paper table needs under ``reading`` and write it to ``out_dir``.
 
     Args:
@@ -159,7 +167,13 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
         recipe: ``fast`` (the shipped checkpoints) or ``paper`` (Table III of the paper recipe).
         contenders: checkpoint paths or factory import paths (``pkg.module.make``, or a mapping
             with ``_target_``, ``name``, ``scenario`` and ``extras``): extra rows.
+        compare_to: a table CSV written before (e.g. ``results/<reading>/table3.csv``): the rows
+            both hold are also written side by side, ``<stem>_vs_reference.md`` / ``.csv``
+            (:mod:`~flock_torchrl.report.compare`), with ``compare_tolerance`` (column -> largest
+            difference) deciding each row's ``within``.
     """
+    tolerance = check_tolerance(compare_tolerance or {})
+    reference = read_table(compare_to, table) if compare_to is not None else None
     rows_to_run, notes = plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders, device,
                               policies)
     results: dict[tuple[str, ...], EvaluationResult] = {}
@@ -201,7 +215,15 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
     score = render_tables(out_dir, reading, episodes, seed)
     log(f"[table {table}] {reading}, {recipe} recipe: wrote {out_dir / f'{stem}.md'} and {csv_path} "
         f"({len(rows_to_run)} rows evaluated, {time.perf_counter() - t0:.1f} s); {score}")
-    return {"rows": rows, "markdown": out_dir / f"{stem}.md", "csv": csv_path, "failed": [], "fidelity": score}
+    compared = None
+    if reference is not None:
+        _, md_path, compared = write_comparison(table, stem, out_dir, compare_to, rows, tolerance,
+                                                f"{Path(checkpoints_dir) / reading if recipe == 'fast' else paper_recipe_dir}")
+        n_in = sum(bool(r["within"]) for r in compared)
+        log(f"[table {table}] beside {compare_to}: {n_in} of {len(compared)} rows within the tolerance "
+            f"{dict(tolerance)}; wrote {md_path}")
+    return {"rows": rows, "markdown": out_dir / f"{stem}.md", "csv": csv_path, "failed": [], "fidelity": score,
+            "comparison": compared}
 
 
 __all__ = ["RECIPES", "Row", "check_table_inputs", "plan", "reproduce", "table_stem"]

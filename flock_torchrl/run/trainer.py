@@ -268,7 +268,7 @@ def _make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, 
     if os.getpid() != parent:
         _ignore_stop_signals()
     return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
-                       compile_step=cfg.compile)
+                       compile_step=cfg.compile_step)
 
 
 def per_uav(batch: TensorDictBase) -> TensorDictBase:
@@ -384,7 +384,7 @@ class _Training:
         else:
             self.envs = [factory(cfg.seed * 1000)]
         self.env = env = self.envs[0]
-        self.learner = learner = make_learner(env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile)
+        self.learner = learner = make_learner(env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss)
         self.buffer = None
         if learner.off_policy:
             # Swarm transitions of one size (batch_size / N of them, rounded up), or single UAV
@@ -555,7 +555,7 @@ class _Training:
 
     def _update_bucket(self) -> str:
         """Where an update's time goes: a compiled learner's first one in this process compiles."""
-        first = self.cfg.compile and not self.split["compile"]
+        first = self.cfg.compile_loss and not self.split["compile"]
         return "compile" if first else "update"
 
     def _finished_episodes(self, batch: TensorDictBase) -> list[list[Any]]:
