@@ -835,8 +835,6 @@ class ReproduceConfig(WorldApp):
     compare_tolerance: Dict[str, float] = field(default_factory=dict)
 
     def check(self, prefix: str | None = None) -> "ReproduceConfig":
-        from .report.compare import check_tolerance
-
         self._check_world()
         choice("table", self.table, (3, 4, 5))
         choice("recipe", self.recipe, ("fast", "paper"))
@@ -847,6 +845,23 @@ class ReproduceConfig(WorldApp):
             _check_contender(f"contenders[{i}]", spec)
         _check_run(self)
         return self._mark_checked()
+
+
+# What reproduce's compare_to= puts side by side (report/compare.py): success rates are
+# fractions, distances m, speeds m/s, times s.
+COMPARED = ("success_rate", "safe_success_rate", "d_min_uav", "d_min_obs", "d_c", "speed", "t_goal")
+
+
+def check_tolerance(tolerance: Mapping[str, float]) -> dict[str, float]:
+    """``compare_tolerance``: compared columns -> a largest difference >= 0."""
+    out = {}
+    for key, value in dict(tolerance).items():
+        if key not in COMPARED:
+            _fail(f"compare_tolerance.{key}", f"not a compared column; one of {', '.join(COMPARED)}")
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0:
+            _fail(f"compare_tolerance.{key}", f"must be a number >= 0; got {value!r}")
+        out[key] = float(value)
+    return out
 
 
 @dataclass

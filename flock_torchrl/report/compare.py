@@ -15,13 +15,10 @@ import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from ..config import ConfigError
+from ..config import COMPARED, ConfigError, check_tolerance
 from ..io import write_csv, write_text
 from .reference import KEY_COLUMNS
 
-# The table's columns compared (success rates are fractions; distances m, speeds m/s, times s).
-COMPARED = ("success_rate", "safe_success_rate", "d_min_uav", "d_min_obs", "d_c", "speed", "t_goal")
-DEFAULT_TOLERANCE = {"success_rate": 0.01, "d_min_uav": 0.1}
 
 
 def read_table(path: str | Path, table: int) -> dict[tuple[str, ...], dict[str, str]]:
@@ -38,17 +35,6 @@ def read_table(path: str | Path, table: int) -> dict[tuple[str, ...], dict[str, 
                                             f"it lacks the columns {missing}")
         rows = [r for r in reader if not r.get("extra")]
     return {tuple(r[c] for c in KEY_COLUMNS[table]): r for r in rows}
-
-
-def check_tolerance(tolerance: Mapping[str, float]) -> dict[str, float]:
-    out = {}
-    for key, value in dict(tolerance).items():
-        if key not in COMPARED:
-            raise ConfigError(f"compare_tolerance.{key}", f"not a compared column; one of {', '.join(COMPARED)}")
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0:
-            raise ConfigError(f"compare_tolerance.{key}", f"must be a number >= 0; got {value!r}")
-        out[key] = float(value)
-    return out
 
 
 def _number(value: Any) -> float:
@@ -129,5 +115,5 @@ def write_comparison(table: int, stem: str, out_dir: str | Path, reference: str 
     return csv_path, md_path, rows
 
 
-__all__ = ["COMPARED", "DEFAULT_TOLERANCE", "check_tolerance", "compare_rows", "read_table", "render_comparison",
+__all__ = ["COMPARED", "check_tolerance", "compare_rows", "read_table", "render_comparison",
            "write_comparison"]
