@@ -1127,12 +1127,14 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 __all__ = [
-    "ALGO_SCHEMAS", "APP_SCHEMAS", "BenchmarkConfig", "COMPARED", "COMPILE_MODES", "CONF_DIR", "ConfigError", "DDPGConfig", "EVAL_SEED",
+    "ALGO_SCHEMAS", "APP_SCHEMAS", "BenchmarkConfig", "COMPARED", "COMPILE_MODES", "CONF_DIR", "ConfigError",
+    "DDPGConfig", "EVAL_SEED",
     "EvaluateConfig", "ExperimentConfig", "FiguresConfig", "LoggerConfig", "MAX_SEED", "OBJECTIVES",
     "POLICY_SCENARIO_FIELDS", "PPOConfig", "PolicyConfig", "READINGS", "ReproduceConfig", "SACConfig",
     "SCENARIO_FIELDS", "ScalingConfig", "ScenarioConfig", "Schema", "ShipConfig", "TrainConfig", "TuneConfig",
     "WorldApp",
-    "algo_config", "available", "check_device", "check_seed", "check_tolerance", "compose", "compose_world", "config_dir",
+    "algo_config", "available", "check_device", "check_seed", "check_tolerance", "compose", "compose_world",
+    "config_dir",
     "default_checkpoints_dir", "saved_scenario", "shipped_checkpoints_dir",
     "config_error", "flatten", "plain", "run_name", "safe_name", "scenario_config",
 ]

@@ -20,13 +20,13 @@ from ..io import write_csv, write_text
 from .reference import KEY_COLUMNS
 
 
-
 def read_table(path: str | Path, table: int) -> dict[tuple[str, ...], dict[str, str]]:
     """The paper's rows of a table CSV written by :func:`~flock_torchrl.report.reproduce.reproduce`
     (extra rows left out), by row key."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError("compare_to", f"{path} is not a file; give a table{table}.csv written by scripts/reproduce.py")
+        raise ConfigError("compare_to", f"{path} is not a file; give a table{table}.csv written by "
+                                        "scripts/reproduce.py")
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
         missing = [c for c in (*KEY_COLUMNS[table], *COMPARED, "extra") if c not in (reader.fieldnames or ())]

@@ -143,7 +143,8 @@ def _contender_key(table: int, entry: TableEntry, name: str) -> tuple[str, ...]:
 
 def check_table_inputs(table: int, reading: str, checkpoints_dir: str | Path, paper_recipe_dir: str | Path | None,
                        only: Sequence[str] = (), recipe: str = "fast", contenders: Sequence[Any] = (),
-                       compare_to: str | Path | None = None, compare_tolerance: Mapping[str, float] | None = None) -> None:
+                       compare_to: str | Path | None = None,
+                       compare_tolerance: Mapping[str, float] | None = None) -> None:
     """Everything a table needs, checked before anything runs (:func:`plan`; the reference
     table of ``compare_to`` read, the tolerance checked)."""
     if compare_to is not None:
@@ -173,7 +174,8 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
             difference) deciding each row's ``within``.
     """
     tolerance = check_tolerance(compare_tolerance or {})
-    reference = read_table(compare_to, table) if compare_to is not None else None
+    if compare_to is not None:
+        read_table(compare_to, table)   # a missing or foreign reference is refused before the first episode
     rows_to_run, notes = plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders, device,
                               policies)
     results: dict[tuple[str, ...], EvaluationResult] = {}
@@ -216,9 +218,9 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
     log(f"[table {table}] {reading}, {recipe} recipe: wrote {out_dir / f'{stem}.md'} and {csv_path} "
         f"({len(rows_to_run)} rows evaluated, {time.perf_counter() - t0:.1f} s); {score}")
     compared = None
-    if reference is not None:
-        _, md_path, compared = write_comparison(table, stem, out_dir, compare_to, rows, tolerance,
-                                                f"{Path(checkpoints_dir) / reading if recipe == 'fast' else paper_recipe_dir}")
+    if compare_to is not None:
+        source = _collection(recipe, reading, checkpoints_dir, paper_recipe_dir)
+        _, md_path, compared = write_comparison(table, stem, out_dir, compare_to, rows, tolerance, str(source))
         n_in = sum(bool(r["within"]) for r in compared)
         log(f"[table {table}] beside {compare_to}: {n_in} of {len(compared)} rows within the tolerance "
             f"{dict(tolerance)}; wrote {md_path}")
