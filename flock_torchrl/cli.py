@@ -146,8 +146,7 @@ def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
 
     check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only,
-                       recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to,
-                       compare_tolerance=cfg.compare_tolerance)
+                       recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to)
 
 
 def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:

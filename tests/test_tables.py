@@ -184,7 +184,8 @@ def test_reproduce_app_checks_every_checkpoint_before_the_first_row(tmp_path):
 
 
 def test_comparison_by_hand(tmp_path):
-    from flock_torchrl.report.compare import COMPARED, compare_rows, read_table, render_comparison
+    from flock_torchrl.config import COMPARED
+    from flock_torchrl.report.compare import compare_rows, read_table, render_comparison
 
     # A reference table: two rows and an extra row (never compared).
     ref = [{"policy": "Policy1", "extra": "", **{m: 1.0 for m in COMPARED}, "success_rate": 0.950, "d_min_uav": 0.50},

@@ -10,14 +10,13 @@ exit status, the verdict is a finding, not a failure.
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from ..config import COMPARED, ConfigError, check_tolerance
+from ..config import COMPARED, ConfigError
 from ..io import write_csv, write_text
-from .reference import KEY_COLUMNS
+from .reference import KEY_COLUMNS, as_float, read_table_csv
 
 
 def read_table(path: str | Path, table: int) -> dict[tuple[str, ...], dict[str, str]]:
@@ -27,21 +26,13 @@ def read_table(path: str | Path, table: int) -> dict[tuple[str, ...], dict[str, 
     if not path.is_file():
         raise ConfigError("compare_to", f"{path} is not a file; give a table{table}.csv written by "
                                         "scripts/reproduce.py")
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in (*KEY_COLUMNS[table], *COMPARED, "extra") if c not in (reader.fieldnames or ())]
-        if missing:
-            raise ConfigError("compare_to", f"{path} is not a Table {table} CSV of scripts/reproduce.py: "
-                                            f"it lacks the columns {missing}")
-        rows = [r for r in reader if not r.get("extra")]
+    rows = read_table_csv(path)
+    missing = [c for c in (*KEY_COLUMNS[table], *COMPARED, "extra") if rows and c not in rows[0]]
+    if not rows or missing:
+        raise ConfigError("compare_to", f"{path} is not a Table {table} CSV of scripts/reproduce.py: "
+                                        f"{'it lacks the columns ' + str(missing) if missing else 'it has no rows'}")
+    rows = [r for r in rows if not r.get("extra")]
     return {tuple(r[c] for c in KEY_COLUMNS[table]): r for r in rows}
-
-
-def _number(value: Any) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def compare_rows(table: int, reference: Mapping[tuple[str, ...], Mapping[str, Any]],
@@ -51,7 +42,7 @@ def compare_rows(table: int, reference: Mapping[tuple[str, ...], Mapping[str, An
     ``within`` (all of them). A missing value (NaN) on either side is never within."""
     out = []
     for row in candidate:
-        if row.get("extra") or not _number(row.get("n_episodes")) > 0:   # an extra row, or one not evaluated
+        if row.get("extra") or not as_float(row.get("n_episodes")) > 0:   # an extra row, or one not evaluated
             continue
         key = tuple(str(row[c]) for c in KEY_COLUMNS[table])
         if key not in reference:
@@ -60,7 +51,7 @@ def compare_rows(table: int, reference: Mapping[tuple[str, ...], Mapping[str, An
         item: dict[str, Any] = dict(zip(KEY_COLUMNS[table], key))
         verdicts = []
         for m in COMPARED:
-            a, b = _number(ref.get(m)), _number(row.get(m))
+            a, b = as_float(ref.get(m)), as_float(row.get(m))
             item[f"{m}_reference"], item[m], item[f"{m}_delta"] = a, b, b - a
             if m in tolerance:
                 ok = bool(abs(b - a) <= tolerance[m])   # NaN compares False
@@ -115,5 +106,4 @@ def write_comparison(table: int, stem: str, out_dir: str | Path, reference: str 
     return csv_path, md_path, rows
 
 
-__all__ = ["COMPARED", "check_tolerance", "compare_rows", "read_table", "render_comparison",
-           "write_comparison"]
+__all__ = ["compare_rows", "read_table", "render_comparison", "write_comparison"]

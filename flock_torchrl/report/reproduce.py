@@ -21,13 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from ..config import EVAL_SEED, ConfigError
+from ..config import EVAL_SEED, ConfigError, check_tolerance
 from ..io import write_csv
 from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints
 from ..run.results import EvaluationResult
 from ..run.rollout import evaluate_handle
-from .compare import check_tolerance, read_table, write_comparison
+from .compare import read_table, write_comparison
 from .markdown import render_tables
 from .reference import (KEY_COLUMNS, PAPER_RECIPE_ROW, TABLE_NUMBERS, TableEntry, comparison_row, comparison_rows,
                         csv_columns, table_entries)
@@ -143,13 +143,11 @@ def _contender_key(table: int, entry: TableEntry, name: str) -> tuple[str, ...]:
 
 def check_table_inputs(table: int, reading: str, checkpoints_dir: str | Path, paper_recipe_dir: str | Path | None,
                        only: Sequence[str] = (), recipe: str = "fast", contenders: Sequence[Any] = (),
-                       compare_to: str | Path | None = None,
-                       compare_tolerance: Mapping[str, float] | None = None) -> None:
+                       compare_to: str | Path | None = None) -> None:
     """Everything a table needs, checked before anything runs (:func:`plan`; the reference
-    table of ``compare_to`` read, the tolerance checked)."""
+    table of ``compare_to`` read)."""
     if compare_to is not None:
         read_table(compare_to, table)
-        check_tolerance(compare_tolerance or {})
     plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders)
 
 
