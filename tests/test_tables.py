@@ -99,6 +99,10 @@ def test_fidelity_score_by_hand():
     score = fidelity({3: rows})
     assert score.score == pytest.approx(7.5 / 7) and score.terms == 7 and not score.complete
     assert score.expected == (12 + 25) * 7
+    # Per metric, the same terms one by one (one row: each metric's mean is its term).
+    assert score.per_metric == pytest.approx({"d_min_obs": 0, "d_min_uav": 2, "d_c": 0, "v_error": 2,
+                                              "phi_error": 0.5, "speed": 0, "t_goal": 3}, abs=1e-9)
+    assert score.metric_line().startswith("mean term per metric: t_goal 3.00, ")
     # A row the paper lacks (the paper recipe's own) counts nothing; a missing value counts nothing.
     extra = dict(rows[0], policy="Policy3-G (paper recipe)", d_c_paper=math.nan)
     assert fidelity({3: [*rows, extra]}).terms == 7

@@ -13,7 +13,7 @@ numbers and in ours.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 from ..world.metrics import CELL_METRICS
@@ -25,12 +25,12 @@ FIDELITY_TABLES = (3, 4)
 
 
 # ---------------------------------------------------------------------------- fidelity
-def fidelity_terms(rows: Sequence[Mapping[str, Any]]) -> list[float]:
+def fidelity_terms(rows: Sequence[Mapping[str, Any]], metrics: Sequence[str] = FIDELITY_METRICS) -> list[float]:
     """``|ours - paper| / max(paper std, 0.1 |paper|, 0.05)`` for every metric of every row
     that has both values (rows without a paper value, e.g. the paper-recipe row, count nothing)."""
     terms = []
     for row in rows:
-        for m in FIDELITY_METRICS:
+        for m in metrics:
             ours, paper, std = as_float(row.get(m)), as_float(row.get(f"{m}_paper")), as_float(row.get(f"{m}_std_paper"))
             if math.isnan(ours) or math.isnan(paper):
                 continue
@@ -46,6 +46,7 @@ class Fidelity:
     terms: int
     expected: int
     parts: dict[int, float]
+    per_metric: dict[str, float] = field(default_factory=dict)  # the mean term of each metric, same rows
 
     @property
     def complete(self) -> bool:
@@ -58,18 +59,25 @@ class Fidelity:
         state = "" if self.complete else f", INCOMPLETE: {self.terms} of {self.expected} terms"
         return f"fidelity score {self.score:.3f} (lower is closer to the paper; {parts}{state})"
 
+    def metric_line(self) -> str:
+        """The mean term per metric, largest first: where the distance to the paper lies."""
+        ranked = sorted(self.per_metric.items(), key=lambda kv: -kv[1])
+        return "mean term per metric: " + ", ".join(f"{m} {v:.2f}" for m, v in ranked)
+
 
 def fidelity(tables: Mapping[int, Sequence[Mapping[str, Any]]]) -> Fidelity:
     """The score over the rows of Tables III and IV given (docs/specification.md section 9)."""
-    terms, parts = [], {}
+    terms, parts, counted = [], {}, []
     for t in FIDELITY_TABLES:
         rows = [r for r in tables.get(t, []) if not is_extra_row(r)]
         part = fidelity_terms(rows)
         if part:
             parts[t] = sum(part) / len(part)
         terms += part
+        counted += rows
+    per_metric = {m: sum(v) / len(v) for m in FIDELITY_METRICS if (v := fidelity_terms(counted, (m,)))}
     expected = sum(len(load_reference(t)[1]) for t in FIDELITY_TABLES) * len(FIDELITY_METRICS)
-    return Fidelity(sum(terms) / len(terms) if terms else math.nan, len(terms), expected, parts)
+    return Fidelity(sum(terms) / len(terms) if terms else math.nan, len(terms), expected, parts, per_metric)
 
 
 # ---------------------------------------------------------------------------- the paper's claims

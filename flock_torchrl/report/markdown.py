@@ -190,8 +190,12 @@ def render_tables(out_dir: str | Path, reading: str, episodes: int, seed: int) -
             "# Table III —", "# Table III, the paper's recipe —", 1))
     write_text(out_dir / "summary.md", summary_markdown(rows, reading, score, paper, paper_score))
     lines = [f"# Fidelity of the reading `{reading}`", "", f"{score}.", ""]
+    if score.per_metric:
+        lines += [f"Tables III and IV, {score.metric_line()}.", ""]
     if paper_score is not None:
         lines += [f"The paper's own recipe (Table III only): {paper_score}.", ""]
+        if paper_score.per_metric:
+            lines += [f"The paper's own recipe, {paper_score.metric_line()}.", ""]
     lines += ["Definition (fixed before any result was seen, docs/specification.md section 9): the mean over Table "
               "III's twelve policies and Table IV's 25 cells of |ours - paper| / max(paper std, 0.1 |paper|, 0.05) "
               "over d_min_obs, d_min_uav, d_c, v_error, phi_error, speed and t_goal. Rows that are not the paper's "
