@@ -11,7 +11,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from flock_torchrl import FlockingEnv
-from flock_torchrl.report.figures import (binned_mean_ci, make_figures, plot_trajectory, save_animation,
+from flock_torchrl.report.figures import (binned_mean_ci, first_block_reaching, make_figures, plot_trajectory, save_animation,
                                           training_curve, trajectory_grid)
 from flock_torchrl.policies.scripted import goal_seeking_policy
 from flock_torchrl.world.frame import render_frame, rollout_states
@@ -91,6 +91,9 @@ def test_reward_curves_from_checkpoints(tmp_path):
         curve = torch.zeros(200, len(EPISODE_COLUMNS), dtype=torch.float64)
         curve[:, 0] = torch.arange(1, 201)
         curve[:, EPISODE_COLUMNS.index("reward")] = offset + torch.arange(1, 201) / 100
+        if seed == 0:  # success: 85 of episodes 1-100, all of 101-200; seed 1 never succeeds
+            curve[:85, EPISODE_COLUMNS.index("success")] = 1.0
+            curve[100:, EPISODE_COLUMNS.index("success")] = 1.0
         save_checkpoint({"meta": {}, "actor": {}, "curve": curve}, root / "literal" / "policy3_g" / f"seed{seed}.pt",
                         kind="policy")
     e, r = training_curve(root / "literal" / "policy3_g" / "seed0.pt")
@@ -99,5 +102,15 @@ def test_reward_curves_from_checkpoints(tmp_path):
     x, mean, half = binned_mean_ci(e, r, 100)
     assert list(x) == [100.0, 200.0] and mean[0] == pytest.approx(0.505) and (half > 0).all()
     written = make_figures("literal", tmp_path / "figures", figs=[4], checkpoints_dir=root, log=lambda m: None)
-    assert written == [tmp_path / "figures" / "fig4_rewards.png"] and written[0].is_file()
+    assert written == [tmp_path / "figures" / f for f in ("fig4_rewards.png", "fig4_convergence.md")]
+    assert all(p.is_file() for p in written)
+    # Convergence: seed 0's first block (1-100) has mean success 0.85 < 0.9, its second 1.0, so
+    # episode 200; seed 1 never (—). Success over the last 100 episodes: 100 %, 0 %.
+    e, s = training_curve(root / "literal" / "policy3_g" / "seed0.pt", "success")
+    assert first_block_reaching(e, s, 0.9) == 200.0 and first_block_reaching(e, s, 0.8) == 100.0
+    assert math.isnan(first_block_reaching(e, 0 * s, 0.9))
+    table = written[1].read_text().splitlines()
+    assert "| Policy3-G | seed0 | 200 | 200 | 100.0 % |" in table and "| Policy3-G | seed1 | 200 | — | 0.0 % |" in table
+    with pytest.raises(ValueError, match="column must be one of"):
+        training_curve(root / "literal" / "policy3_g" / "seed0.pt", "successes")
     assert make_figures("paper_fit", tmp_path / "figures2", figs=[4], checkpoints_dir=root, log=lambda m: None) == []

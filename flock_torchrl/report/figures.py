@@ -22,7 +22,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..io import atomic_write
+from ..io import atomic_write, write_text
 from ..policies.checkpoint import load_checkpoint
 from ..policies.registry import shipped_checkpoints
 from ..config import EVAL_SEED
@@ -198,13 +198,55 @@ def plot_reward_curves(curves: Mapping[str, Sequence[tuple[np.ndarray, np.ndarra
     return fig
 
 
-def training_curve(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """``(episode, reward)`` of a checkpoint's training curve (one row per finished episode)."""
+def training_curve(path: str | os.PathLike, column: str = "reward") -> tuple[np.ndarray, np.ndarray]:
+    """``(episode, column)`` of a checkpoint's training curve (one row per finished episode;
+    ``column`` one of the trainer's ``EPISODE_COLUMNS``, e.g. ``success``)."""
+    if column not in EPISODE_COLUMNS:
+        raise ValueError(f"training_curve: column must be one of {EPISODE_COLUMNS}, got {column!r}")
     curve = load_checkpoint(path).get("curve")
     if curve is None or curve.numel() == 0:
         return np.zeros(0), np.zeros(0)
     curve = curve.numpy()
-    return curve[:, EPISODE_COLUMNS.index("episode")], curve[:, EPISODE_COLUMNS.index("reward")]
+    return curve[:, EPISODE_COLUMNS.index("episode")], curve[:, EPISODE_COLUMNS.index(column)]
+
+
+# How Fig. 4's table measures convergence: the first block of 100 training episodes whose
+# success rate reaches 90 % (the paper: Policy4-G "has a slower convergence rate").
+CONVERGENCE_BLOCK = 100
+CONVERGENCE_SUCCESS = 0.9
+
+
+def first_block_reaching(episodes: np.ndarray, values: np.ndarray, threshold: float,
+                         bin_size: int = CONVERGENCE_BLOCK) -> float:
+    """The last episode of the first block of ``bin_size`` episodes (as :func:`binned_mean_ci`
+    blocks them) whose mean value reaches ``threshold``; ``nan`` if none does."""
+    ends, means, _ = binned_mean_ci(episodes, values, bin_size)
+    hit = np.flatnonzero(means >= threshold)
+    return float(ends[hit[0]]) if hit.size else math.nan
+
+
+def convergence_markdown(collections: Mapping[str, Mapping[str, Sequence[Path]]]) -> str:
+    """Fig. 4's convergence table: per collection (title -> policy -> checkpoints), per run,
+    the episodes trained, the first block of 100 whose training success reaches 90 %, and the
+    success over its last 100 training episodes."""
+    lines = ["# Fig. 4: convergence of the training runs", "",
+             f"Per run, from the training curve its checkpoint carries: the last episode of the first block of "
+             f"{CONVERGENCE_BLOCK} training episodes whose success rate reaches {CONVERGENCE_SUCCESS:.0%} "
+             f"(— where none does), and the success rate over its last {CONVERGENCE_BLOCK}. Training "
+             f"episodes explore (stochastic actions); the tables evaluate deterministic ones."]
+    for title, runs in collections.items():
+        lines += ["", f"**{title}**", "", f"| policy | run | episodes | success >= {CONVERGENCE_SUCCESS:.0%} from "
+                  f"episode | success, last {CONVERGENCE_BLOCK} |", "|---|---|---|---|---|"]
+        for name, paths in runs.items():
+            for path in paths:
+                episodes, success = training_curve(path, "success")
+                if not episodes.size:
+                    continue
+                first = first_block_reaching(episodes, success, CONVERGENCE_SUCCESS)
+                reached = "—" if math.isnan(first) else f"{first:.0f}"
+                lines.append(f"| {name} | {Path(path).stem} | {episodes.size} | {reached} | "
+                             f"{100 * success[-CONVERGENCE_BLOCK:].mean():.1f} % |")
+    return "\n".join(lines) + "\n"
 
 
 # ---------------------------------------------------------------------------- the figures
@@ -266,6 +308,11 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
     names = [e.policy for e in table_entries(3)]
     paper = _curves(names, Path(paper_recipe_dir)) if paper_recipe_dir is not None else {}
     if 4 in figs:
+        collections = {f"{reading}, shipped (`fast`) checkpoints": Path(checkpoints_dir) / reading}
+        if paper:
+            collections[f"{reading}, the paper's recipe"] = Path(paper_recipe_dir)
+        convergence = {title: {n: shipped_checkpoints(n, folder) for n in dict.fromkeys(names)}
+                       for title, folder in collections.items()}
         curves = _curves(names, Path(checkpoints_dir) / reading)
         if "Policy3-G" in paper:
             curves[PAPER_RECIPE_ROW] = paper["Policy3-G"]
@@ -284,6 +331,8 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
                                title=f"Training reward, the paper's recipe ({reading}; mean and 95 % CI per 100 "
                                      "episodes)")
             written.append(out / "fig4_paper_recipe.png")
+        if curves or paper:
+            written.append(write_text(out / "fig4_convergence.md", convergence_markdown(convergence)))
     if 5 in figs:
         log("Fig. 5: one training-scenario episode per policy")
         panels = [_panel(n, n, "train", reading, seed, device, checkpoints_dir, log) for n in names]
@@ -307,5 +356,6 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
     return written
 
 
-__all__ = ["FIG6_POLICIES", "FIG6_SCENARIOS", "binned_mean_ci", "check_figure_inputs", "make_figures", "plot_reward_curves",
+__all__ = ["CONVERGENCE_BLOCK", "CONVERGENCE_SUCCESS", "FIG6_POLICIES", "FIG6_SCENARIOS", "binned_mean_ci",
+           "check_figure_inputs", "convergence_markdown", "first_block_reaching", "make_figures", "plot_reward_curves",
            "plot_trajectory", "save_animation", "save_figure", "training_curve", "trajectory_grid"]
