@@ -295,7 +295,8 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
     * ``fig4_rewards.png``: training reward per learned policy, all its shipped seeds pooled
       (the checkpoints carry their training curves), the paper recipe's Policy3-G dashed beside
       them; ``fig4_paper_recipe.png``: the same for every policy trained with the paper's recipe
-      (the recipe of the paper's own Fig. 4).
+      (the recipe of the paper's own Fig. 4); ``fig4_convergence.md``: per run of both, the
+      first block of 100 training episodes at 90 % success (:func:`convergence_markdown`).
     * ``fig5_trajectories.png``: one seeded training-scenario episode per policy (3 x 4 grid),
       and Policy3-G's as an animation, ``policy3_g_train.gif``.
     * ``fig6_generalization.png``: one seeded episode per scenario S1-S5 (rows) and policy
