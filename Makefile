@@ -125,9 +125,11 @@ publish: $(STAMP)
 			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
 	done
 
-# The parts of publish that change when new checkpoints are shipped, alone: the paper
-# recipe's Table III and Fig. 4 (paper_fit), and the scaling table with the mixed-size policy.
+# The parts of publish that change when paper-recipe checkpoints are shipped, alone (paper_fit):
+# the paper recipe's Table III, the fast Table III (its "Policy3-G (paper recipe)" row pools
+# the shipped seeds), and Fig. 4 with its convergence table.
 publish-paper-recipe: $(STAMP)
+	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES) reading=paper_fit hydra.run.dir=results/paper_fit
 	$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=paper_fit \
 		hydra.run.dir=results/paper_fit
 	$(PYTHON) scripts/figures.py reading=paper_fit figs=[4] hydra.run.dir=figures/paper_fit
