@@ -86,7 +86,7 @@ def _prepare_train(cfg: TrainConfig, out: Path) -> None:
 def _run_train(cfg: TrainConfig, out: Path) -> float:
     import logging
 
-    from .run.trainer import train
+    from .run.launch import train
 
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # no "Initialized LazyTensorStorage" lines
     _set_threads(cfg.threads)

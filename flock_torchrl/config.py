@@ -709,6 +709,7 @@ class TrainConfig(WorldApp):
     compile: Any = MISSING                   # false | true (the loss and the step) | step | loss: torch.compile
     objective: str = MISSING                 # what the app returns to a sweeper: a final-evaluation metric
     resumable: List[str] = field(default_factory=list)   # keys a resume may change (a trailing . = a group)
+    population: int = 1                      # members trained together, seeds seed .. seed + population - 1
 
     def check(self, prefix: str | None = None) -> "TrainConfig":
         self._check_world()
@@ -731,7 +732,32 @@ class TrainConfig(WorldApp):
         choice("resume", str(self.resume).lower(), RESUME_MODES)
         choice("compile", str(self.compile).lower(), COMPILE_MODES)
         choice("objective", self.objective, OBJECTIVES)
+        self._check_population()
         return self._mark_checked()
+
+    def _check_population(self) -> None:
+        """A population (``population > 1``) trains SAC or DDPG, one swarm size, in this process."""
+        count("population", self.population, 1, MAX_POPULATION)
+        check_seed("seed", self.seed + self.population - 1)
+        if self.population == 1:
+            return
+        if self.algo.name not in ("sac", "ddpg"):
+            _fail("population", f"a population trains an off-policy learner (sac, ddpg); {self.policy.id} trains "
+                                f"with {self.algo.name}: use population=1")
+        if self.experiment.swarm_sizes:
+            _fail("population", "a population trains one swarm size; experiment.swarm_sizes (mixed sizes) needs "
+                                "population=1")
+        if self.experiment.workers != 1:
+            _fail("population", f"a population steps its worlds in this process; experiment.workers must be 1, "
+                                f"got {self.experiment.workers}")
+        if self.compile_loss:
+            _fail("population", "a population's update runs eagerly (torch.vmap over its members): use compile=false "
+                                "or compile=step")
+
+    @property
+    def seeds(self) -> list[int]:
+        """The members' seeds: ``seed .. seed + population - 1``."""
+        return list(range(self.seed, self.seed + self.population))
 
     @property
     def compile_step(self) -> bool:
@@ -766,6 +792,8 @@ class TrainConfig(WorldApp):
 
 
 RESUME_MODES = ("false", "true", "auto")
+# Members of one population (each holds its own networks, optimiser state and replay buffer).
+MAX_POPULATION = 64
 # What `compile` may be: nothing, both, or one of the env's step and the learner's loss.
 COMPILE_MODES = ("false", "true", "step", "loss")
 # What the train app returns to a sweeper (Optuna, Ax): a metric of the run's final evaluation.

@@ -22,7 +22,8 @@ from helpers import ROOT, run_script, script_env
 from flock_torchrl import CheckpointError
 from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.run import trainer
-from flock_torchrl.run.trainer import make_train_config, train
+from flock_torchrl.run.launch import train
+from flock_torchrl.run.trainer import make_train_config
 
 TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.eval_every_frames=0", "experiment.eval_episodes=2",
         "progress=false"]

@@ -9,7 +9,8 @@ from flock_torchrl import FlockingEnv, load_policy
 from flock_torchrl.config import ConfigError, algo_config, compose
 from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.policies.learners import SACLearner
-from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done, make_train_config, per_uav, train
+from flock_torchrl.run.launch import train
+from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done, make_train_config, per_uav
 
 
 def swarm_batch(n_uavs: int, steps: int = 3):

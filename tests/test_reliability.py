@@ -18,7 +18,8 @@ from helpers import script_env
 
 from flock_torchrl import CheckpointError, FlockingEnv
 from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
-from flock_torchrl.run.trainer import make_train_config, train
+from flock_torchrl.run.launch import train
+from flock_torchrl.run.trainer import make_train_config
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.eval_every_frames=0", "experiment.eval_episodes=2",

@@ -8,7 +8,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from flock_torchrl import FlockingEnv, load_policy
 from flock_torchrl.policies.checkpoint import CheckpointError, load_checkpoint
-from flock_torchrl.run.trainer import make_train_config, train
+from flock_torchrl.run.launch import train
+from flock_torchrl.run.trainer import make_train_config
 
 
 def tiny(policy="policy3_g", *overrides, logger="csv"):

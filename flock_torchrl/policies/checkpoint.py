@@ -130,10 +130,16 @@ def _version_hint(found: object) -> str:
     return f"it was written by an older flock_torchrl (format v{version}; this one reads v{FORMAT_VERSION})"
 
 
-def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike) -> Path:
+def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike, member: int | None = None) -> Path:
     """Write the slim, shippable part of a training checkpoint (actor, metadata, config,
-    counters, evaluations, training curve; no optimiser, replay buffer or env state)."""
+    counters, evaluations, training curve; no optimiser, replay buffer or env state); of a
+    population's checkpoint, member ``member``'s (each member holds those keys itself)."""
     payload = load_checkpoint(checkpoint, kind="training")
+    if member is not None:
+        members = payload.get("members") or []
+        if not 0 <= member < len(members):
+            raise CheckpointError(f"{checkpoint} holds {len(members)} population member(s), not member {member}")
+        payload = members[member]
     slim = {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
             if key in payload}
     return save_checkpoint(slim, destination, kind="policy")

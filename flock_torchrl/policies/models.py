@@ -12,12 +12,37 @@ from __future__ import annotations
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import distributions as D
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 OBS = ("agents", "observation")
 ACTION = ("agents", "action")
 LOG_PROB = ("agents", "action_log_prob")
+
+
+class _Normal(D.Normal):
+    """``torch.distributions.Normal`` whose reparameterised draw is ``torch.randn_like(loc)``.
+
+    Torch's own draws into a fresh unbatched tensor (``empty(shape).normal_()``), which
+    ``torch.vmap(..., randomness="different")`` refuses; ``randn_like`` of the (batched) mean
+    draws one independent stream per vmapped member. Without vmap both draw the same numbers
+    from the same generator in the same order, so a solo run samples exactly what it did."""
+
+    def rsample(self, sample_shape: torch.Size = torch.Size()) -> torch.Tensor:
+        shape = self._extended_shape(sample_shape)
+        return self.loc + torch.randn_like(self.loc.expand(shape)) * self.scale
+
+
+class TanhNormal(TanhNormal):
+    """TorchRL's ``TanhNormal`` on :class:`_Normal`: the same distribution, and usable inside
+    ``torch.vmap`` over a population's members (:mod:`.population`)."""
+
+    def update(self, loc: torch.Tensor, scale: torch.Tensor) -> None:
+        super().update(loc, scale)
+        root = self.root_dist
+        if type(root) is D.Normal:
+            root.__class__ = _Normal
 
 
 def shared_mlp(n_in: int, n_out: int, hidden: int, depth: int, device=None) -> MLP:

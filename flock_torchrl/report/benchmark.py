@@ -238,7 +238,8 @@ def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[
     time split."""
     import tempfile
 
-    from ..run.trainer import make_train_config, train
+    from ..run.launch import train
+    from ..run.trainer import make_train_config
 
     rates, splits = {}, []
     for name, compile in (("eager", False), ("compiled", True)):

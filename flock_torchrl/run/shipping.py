@@ -17,36 +17,51 @@ from ..policies.checkpoint import LAST, export_policy, load_checkpoint
 from .schedule import Schedule
 
 
-def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Path]:
-    """``<root>/<policy>/seed<k>/last.pt`` of the runs without extra overrides that spent their
-    budget and ran their final evaluation (a run still training, or stopped early, is skipped
-    with a message)."""
+# A solo run's folder, or a population's (``population=K``: seeds seed .. seed + K - 1).
+_SOLO = re.compile(r"seed(\d+)")
+_POPULATION = re.compile(r"seed(\d+)__population-(\d+)")
+
+
+def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[tuple[Path, str, str, int | None]]:
+    """``(last.pt, policy, seed<k>, member)`` of every finished run under ``<root>/<policy>/``:
+    a solo run ``seed<k>/`` (``member`` None) and each member of a population
+    ``seed<s>__population-<K>/``; runs with other overrides are not shipped. A run still
+    training, or stopped early, is skipped with a message."""
     runs = []
     for last in sorted(root.glob(f"*/seed*/{LAST}")):
-        if not re.fullmatch(r"seed\d+", last.parent.name):
+        solo, population = _SOLO.fullmatch(last.parent.name), _POPULATION.fullmatch(last.parent.name)
+        if not (solo or population):
             continue
         payload = load_checkpoint(last, kind="training")
         c = payload["counters"]
         if not Schedule(SimpleNamespace(**payload["config"]["experiment"])).done(c, payload.get("evaluations", [])):
             log(f"skipped {last}: not finished ({c['frames']} frames, {c['episodes']} episodes)")
             continue
-        runs.append(last)
+        policy = last.parent.parent.name
+        if solo:
+            runs.append((last, policy, last.parent.name, None))
+        else:
+            runs += [(last, policy, f"seed{m['seed']}", k) for k, m in enumerate(payload["members"])]
     return runs
 
 
-def ship_collection(runs: list[Path], dest: Path, reading: str, title: str, source: str,
-                    log: Callable[[str], None] = print) -> list[Path]:
-    """Export each run's ``last.pt`` to ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat
-    layout, ``<dest>/<policy>_seed<k>.pt``, move to their place) and write ``<dest>/MANIFEST.md``
-    listing every checkpoint the collection holds."""
+def ship_collection(runs: list[tuple[Path, str, str, int | None]], dest: Path, reading: str, title: str,
+                    source: str, log: Callable[[str], None] = print) -> list[Path]:
+    """Export each run (or population member) of :func:`_finished_runs` to
+    ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat layout, ``<dest>/<policy>_seed<k>.pt``,
+    move to their place) and write ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
     shipped = []
-    for last in runs:
-        policy, seed = last.parent.parent.name, last.parent.name
+    seen: dict[Path, Path] = {}
+    for last, policy, seed, member in runs:
         target = dest / policy / f"{seed}.pt"
-        export_policy(last, target)
+        if target in seen:
+            raise ValueError(f"{last} and {seen[target]} both hold {policy} {seed}: ship one of them (move the "
+                             "other run folder away)")
+        seen[target] = last
+        export_policy(last, target, member=member)
         if load_checkpoint(target, kind="policy")["meta"]["reading"] != reading:
             raise ValueError(f"{last} was trained under another reading than {reading!r}")
-        log(f"{last} -> {target}")
+        log(f"{last} -> {target}" + ("" if member is None else f" (member {member})"))
         shipped.append(target)
     for legacy in sorted(dest.glob("*_seed*.pt")):
         policy, _, seed = legacy.stem.rpartition("_")

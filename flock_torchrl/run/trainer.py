@@ -249,7 +249,7 @@ def _shutdown(collector: Any, timeout: float = SHUTDOWN_TIMEOUT) -> None:
                 proc.kill()
 
 
-def _start_resource_tracker() -> None:
+def start_resource_tracker() -> None:
     """Start multiprocessing's resource tracker with the stop signals ignored: it blocks SIGINT
     and SIGTERM itself, but a SIGHUP to the process group (a closed terminal, an ssh drop)
     would kill it, and its replacement then prints tracebacks for every shared block."""
@@ -295,29 +295,7 @@ def agentwise_done(batch: TensorDictBase, n_agents: int) -> TensorDictBase:
 
 
 # ---------------------------------------------------------------------------- training
-def train(cfg: TrainConfig | DictConfig | dict, run_dir: str | os.PathLike | None = None) -> TrainResult:
-    """Train one learned policy.
-
-    Args:
-        cfg: a checked :class:`TrainConfig`, or the composed ``conf/train.yaml`` (Hydra's, or
-            :func:`make_train_config`'s), converted and checked here.
-        run_dir: the run folder; default: Hydra's output folder (``scripts/train.py``).
-
-    Raises:
-        ConfigError: a bad config value (nothing is written).
-        CheckpointError: a refused resume or a busy / mismatched run folder (nothing changes).
-        TrainingInterrupted: a signal stopped the run after it wrote its checkpoint.
-    """
-    if not isinstance(cfg, TrainConfig):
-        cfg = TrainConfig.from_config(OmegaConf.create(cfg) if isinstance(cfg, dict) else cfg)
-    run_dir = Path(run_dir) if run_dir is not None else _hydra_output_dir()
-    prepare(cfg, run_dir)
-    with RunLock(run_dir):
-        clean_stale_temporaries(run_dir)
-        return _Training(cfg, run_dir).run()
-
-
-def _hydra_output_dir() -> Path:
+def hydra_output_dir() -> Path:
     from hydra.core.hydra_config import HydraConfig
 
     if not HydraConfig.initialized():
@@ -335,7 +313,7 @@ def _hydra_settings() -> dict[str, Any]:
             "callbacks": OmegaConf.to_container(hydra.callbacks, resolve=True) if hydra.callbacks else {}}
 
 
-class _Training:
+class Training:
     """One run: its pieces, its loop, its checkpoints (``train`` is its entry point)."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path) -> None:
@@ -370,7 +348,7 @@ class _Training:
     # ---------------------------------------------------------------- the pieces
     def _build(self, payload: dict | None) -> None:
         cfg, exp = self.cfg, self.cfg.experiment
-        _start_resource_tracker()  # before the replay buffer's shared counter or any worker needs it
+        start_resource_tracker()  # before the replay buffer's shared counter or any worker needs it
         torch.manual_seed(cfg.seed)
         device = torch.device(cfg.device)
         per_worker = exp.num_envs // exp.workers
@@ -431,6 +409,7 @@ class _Training:
         if payload is not None:
             self.counters.update(payload["counters"])
             self.evaluations = list(payload.get("evaluations", []))
+            self._restore(payload)
         schedule = Schedule(exp).start(self.counters["frames"])
         finished = schedule.finished(self.counters["frames"], self.counters["episodes"], self.counters["seconds"])
         if schedule.done(self.counters, self.evaluations):
@@ -459,10 +438,16 @@ class _Training:
                                   f"{self.cfg.policy.id}_seed{self.cfg.seed}")
         if self.logger is not None:
             self.logger.log_hparams(logger_hparams(self.resolved))
+        self._open_episode_logs(resumed)
+
+    def _open_episode_logs(self, resumed: bool) -> None:
         self.episode_log = EpisodeLog(self.run_dir / "episodes.csv", EPISODE_COLUMNS,
                                       self.counters["episodes"] if resumed else None)
         # The running means over the last 100 episodes continue from the (cut back) episode log.
         self.recent = [(row[2], bool(row[3])) for row in self.episode_log.rows()[-100:]]
+
+    def _restore(self, payload: dict) -> None:
+        """What a subclass restores from a checkpoint beyond the counters and evaluations."""
 
     def _loop(self, schedule: Schedule, signals: Signals) -> None:
         counters, split = self.counters, self.split
@@ -648,8 +633,8 @@ class _Training:
         return TrainResult(self.run_dir, path, c["frames"], c["episodes"], c["updates"], c["seconds"],
                            self.evaluations, interrupted, dict(self.split))
 
-    def _save(self) -> Path:
-        self.counters["seconds"] = time.perf_counter() - self.start
+    def _state(self) -> dict[str, Any]:
+        """Everything the checkpoint holds."""
         exp = self.cfg.experiment
         state = {
             "meta": self.meta, "config": self.resolved, "counters": dict(self.counters),
@@ -661,6 +646,11 @@ class _Training:
             state["env_state"] = [e.get_state() for e in self.envs] if self.mixed else self.env.get_state()
         if self.buffer is not None and exp.keep_buffer_in_checkpoint:
             state["buffer"] = self.buffer.state_dict()
+        return state
+
+    def _save(self) -> Path:
+        self.counters["seconds"] = time.perf_counter() - self.start
+        state = self._state()
         try:
             path = save_checkpoint(state, self.ckpt_path, kind="training")
             self.saved_frames = self.counters["frames"]
@@ -697,5 +687,5 @@ class _Progress:
 
 
 __all__ = ["EPISODE_COLUMNS", "Signals", "Stopped", "TRANSITION_KEYS", "TrainResult", "TrainingInterrupted",
-           "agentwise_done", "checkpoint_meta", "config_differences", "make_train_config", "memory_estimate",
-           "prepare", "train"]
+           "Training", "agentwise_done", "checkpoint_meta", "config_differences", "hydra_output_dir",
+           "make_train_config", "memory_estimate", "prepare", "start_resource_tracker"]

@@ -189,15 +189,27 @@ class FlockingEnv(EnvBase):
             world["sensed"] = sense(state, self._static, self.cfg, normals)
         return TensorDict(world, batch_size=[b], device=dev)
 
-    def _fresh_worlds(self, count: int) -> TensorDict:
-        """``count`` new episodes: spawned (Eq. 30), at rest, sensed."""
-        layout = sample_layout(self.cfg, count, self._static, self._generator, self.device)
+    # The env's only random draws go through these two (a population draws per member).
+    def _draw_layout(self, index: torch.Tensor | None):
+        """Spawns for the worlds ``index`` (ascending; ``None``: every world), from the env's generator."""
+        count = self.num_envs if index is None else int(index.numel())
+        return sample_layout(self.cfg, count, self._static, self._generator, self.device)
+
+    def _draw_noise(self, index: torch.Tensor | None):
+        """Sensor noise for the worlds ``index`` (``None``: every world); ``None`` without noise."""
+        count = self.num_envs if index is None else int(index.numel())
+        return noise_draws(self.cfg, count, self._generator, self.device)
+
+    def _fresh_worlds(self, index: torch.Tensor | None = None) -> TensorDict:
+        """New episodes for the worlds ``index`` (``None``: all): spawned (Eq. 30), at rest, sensed."""
+        layout = self._draw_layout(index)
+        count = self.num_envs if index is None else int(index.numel())
         dev = self.device
         state = empty_state(self.cfg, count, dev)
         state.update(position=layout.position, heading=layout.heading, goal=layout.goal,
                      moving_position=layout.moving_position, moving_velocity=layout.moving_velocity,
                      drawn_circles=layout.drawn_circles, drawn_rectangles=layout.drawn_rectangles)
-        sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, count, self._generator, dev))
+        sensed = sense(state, self._static, self.cfg, self._draw_noise(index))
         return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
                           batch_size=[count], device=dev)
 
@@ -268,11 +280,11 @@ class FlockingEnv(EnvBase):
             return self._output()
         self._restored = False
         if mask is None or bool(mask.all()) or not self._sensed_once:
-            self.world = self._fresh_worlds(self.num_envs)
+            self.world = self._fresh_worlds()
             self._sensed_once = True
         elif bool(mask.any()):
             index = mask.nonzero().squeeze(-1)
-            fresh = self._fresh_worlds(int(index.numel()))
+            fresh = self._fresh_worlds(index)
             # Out of place: tensors already handed out in earlier outputs stay as they were.
             self.world = self.world.apply(lambda old, new: old.index_put((index,), new), fresh)
         return self._output()
@@ -284,7 +296,7 @@ class FlockingEnv(EnvBase):
         action = self._checked_action(tensordict)
         world = self.world
         state = {k: world[k] for k in STATE_KEYS}
-        normals = noise_draws(self.cfg, self.num_envs, self._generator, self.device)
+        normals = self._draw_noise(None)
         state, sensed, episode, reward, summary = self._transition(
             state, world["sensed"].to_dict(), world["episode"].to_dict(), action, self._static, self.cfg, normals)
         # The step's outputs have the world's shapes by construction: no per-entry checks.
@@ -375,7 +387,7 @@ class FlockingEnv(EnvBase):
             return torch.as_tensor(x, dtype=torch.float32, device=self.device)
 
         if not self._sensed_once:
-            self.world = self._fresh_worlds(self.num_envs)
+            self.world = self._fresh_worlds()
             self._sensed_once = True
         given = {"position": position, "heading": heading, "goal": goal, "velocity": velocity,
                  "moving_position": moving_position, "drawn_circles": drawn_circles,
@@ -392,7 +404,7 @@ class FlockingEnv(EnvBase):
         for key in ("drawn_circles", "drawn_rectangles"):
             if given[key] is not None and not bool((state[key][..., 2:] > 0).all()):
                 raise ValueError(f"place: {key} has a size <= 0; radii, widths and heights must be positive")
-        sensed = sense(state, self._static, self.cfg, noise_draws(self.cfg, self.num_envs, self._generator, self.device))
+        sensed = sense(state, self._static, self.cfg, self._draw_noise(None))
         self.world = TensorDict({**state, "episode": new_accumulator(self.num_envs, self.device), "sensed": sensed},
                                 batch_size=self.batch_size, device=self.device)
         self._restored = False

@@ -1,0 +1,280 @@
+"""Training a population: ``population=K`` trains seeds ``seed .. seed + K - 1`` in one process.
+
+The loop is the solo run's (:mod:`.trainer`): one collector, one replay buffer, one learner,
+the same schedule, checkpoints, signals and resume. What changes is what each piece holds:
+
+* the env is a :class:`~flock_torchrl.world.population.PopulationEnv`: ``K * B`` worlds,
+  member-major, each member's spawns from its own generator (seeded as a solo run's env);
+* the learner is a :class:`~flock_torchrl.policies.population.PopulationLearner`: the members'
+  parameters stacked, TorchRL's loss called under ``torch.vmap``;
+* the replay buffer's items are population rows ``[K]`` (one swarm transition per member),
+  sampled per member (:class:`~flock_torchrl.policies.population.MemberSampler`);
+* counters are per member: ``frames`` is each member's (all collect alike), episodes are
+  counted per member, and the budget ``max_episodes`` is spent when every member has spent it.
+  A member that reaches it first is *final* from then on: its actor, counters and training
+  curve at that batch are what it ships (it keeps stepping with the others, but nothing it
+  does later is kept), so each member's budget means what a solo run's does.
+
+Each member's episodes go to ``<run>/seed<s>/episodes.csv``, its scalars to the logger under
+``seed<s>/...``; the checkpoint holds every member's slim policy (``members``), which
+``make ship-checkpoints`` exports as ``<policy>/seed<s>.pt``.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType
+
+from ..config import TrainConfig
+from ..policies.population import MemberSampler, PopulationLearner
+from ..world.metrics import CELL_METRICS
+from ..world.population import PopulationEnv
+from .run_folder import EpisodeLog
+from ..policies.checkpoint import CheckpointError
+from .trainer import EPISODE_COLUMNS, TRANSITION_KEYS, Training, agentwise_done, checkpoint_meta, start_resource_tracker
+
+_ROW_METRICS = ("return", "success", "safe_success", *CELL_METRICS, "steps")
+
+
+def member_meta(meta: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A member's checkpoint metadata: the population's, with the member's own seed."""
+    return {**meta, "seed": seed}
+
+
+class PopulationTraining(Training):
+    """One population run (``train`` dispatches here when ``cfg.population > 1``; a population of
+    one may be built directly, and then trains exactly what the solo run trains)."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: Path) -> None:
+        super().__init__(cfg, run_dir)
+        self.seeds = cfg.seeds
+        self.k = len(self.seeds)
+        self.member_episodes = [0] * self.k
+        self.member_evaluations: list[list[dict[str, float]]] = [[] for _ in self.seeds]
+        self.final: list[dict[str, Any] | None] = [None] * self.k   # a member's frozen result, once final
+        self.split["members"] = 0.0  # per-member bookkeeping (episode rows, snapshots)
+
+    # ---------------------------------------------------------------- the pieces
+    def _build(self, payload: dict | None) -> None:
+        cfg, exp = self.cfg, self.cfg.experiment
+        start_resource_tracker()
+        torch.manual_seed(cfg.seed)
+        device = torch.device(cfg.device)
+        self.mixed = False
+        env = PopulationEnv(cfg.train_scenario, self.k, exp.num_envs, [s * 1000 for s in self.seeds],
+                            device=device, compile_step=cfg.compile_step)
+        self.envs, self.env = [env], env
+        self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds)
+        n = cfg.scenario.n_uavs
+        batch_swarm = max(1, math.ceil(cfg.algo.batch_size / n))
+        capacity = max(batch_swarm, math.ceil(cfg.algo.buffer_size / n))
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device),
+                                             sampler=MemberSampler(self.k), batch_size=batch_swarm)
+        if payload is not None:
+            learner.load_state_dict(payload["learner"])
+            if "buffer" not in payload:
+                raise CheckpointError(f"the checkpoint in {self.run_dir} holds no replay buffer "
+                                      "(experiment.keep_buffer_in_checkpoint=false): it cannot be resumed "
+                                      "exactly; start a new run")
+            self.buffer.load_state_dict(payload["buffer"])
+            env.set_state(payload["env_state"])
+        init_random = max(0, exp.init_random_frames - self.counters["frames"])
+        self.collector = Collector(env, learner.collector_policy, track_traj_ids=False,
+                                   frames_per_batch=env.num_envs * exp.steps_per_batch, total_frames=-1,
+                                   device=device, init_random_frames=init_random * self.k or None,
+                                   exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+        self.collectors = [self.collector]
+        if payload is not None:
+            torch.set_rng_state(payload["rng"]["torch"])
+        self.meta = {**checkpoint_meta(cfg, env), "population": self.k, "seeds": list(self.seeds)}
+        self._eval_actor = copy.deepcopy(learner.actor)
+
+    def _open_episode_logs(self, resumed: bool) -> None:
+        self.member_logs = [EpisodeLog(self.run_dir / f"seed{s}" / "episodes.csv", EPISODE_COLUMNS,
+                                       self.member_episodes[k] if resumed else None)
+                            for k, s in enumerate(self.seeds)]
+        self.episode_log = self.member_logs[0]
+        self.recent = []
+        self.member_recent = [[(row[2], bool(row[3])) for row in log.rows()[-100:]] for log in self.member_logs]
+
+    def _close(self) -> None:
+        for log in self.member_logs[1:]:
+            log.close()
+        super()._close()
+
+    # ---------------------------------------------------------------- one batch
+    def _consume(self, batches: Sequence[TensorDictBase]) -> dict[str, torch.Tensor]:
+        (batch,) = batches
+        self.counters["frames"] += batch.numel() // self.k
+        self.counters["iterations"] += 1
+        batch = agentwise_done(batch, self.env.n_agents)
+        self._episode_rows(batch)
+        self.learner.on_frames(batch.numel() // self.k)
+        stats, n_updates = self._learn([batch])
+        self.counters["updates"] += n_updates
+        self._freeze_finished()
+        return stats
+
+    def _learn(self, batches: Sequence[TensorDictBase]) -> tuple[dict[str, torch.Tensor], int]:
+        import time
+
+        (batch,) = batches
+        exp, split = self.cfg.experiment, self.split
+        start = time.perf_counter()
+        rows = batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1)
+        self.buffer.extend(rows.transpose(0, 1).contiguous())   # [B * T, K]: member k in column k
+        split["buffer"] += time.perf_counter() - start
+        stats: dict[str, torch.Tensor] = {}
+        n = 0
+        if self.counters["frames"] >= exp.init_random_frames and len(self.buffer) >= self.buffer.batch_size:
+            device = torch.device(self.cfg.device)
+            for _ in range(exp.updates_per_batch):
+                t0 = time.perf_counter()
+                sample = self.buffer.sample().to(device)
+                t1 = time.perf_counter()
+                stats = self.learner.update(sample)
+                split["sampling"] += t1 - t0
+                split["update"] += time.perf_counter() - t1
+                n += 1
+        return stats, n
+
+    def _episode_rows(self, batch: TensorDictBase) -> None:
+        """Each member's finished episodes as rows of its own episode log (one tensor per column,
+        the member of each episode from its world's index)."""
+        import time
+
+        start = time.perf_counter()
+        done = batch.get(("next", "done")).squeeze(-1)               # [K * B, T]
+        if bool(done.any()):
+            world, _ = done.nonzero(as_tuple=True)                   # world-major, as the solo log's rows
+            ep = batch.get(("next", "episode"))[done]
+            member = self.env.member_of(world)
+            columns = torch.stack([ep[k].double() for k in _ROW_METRICS], -1)   # [E, M]
+            for k in member.unique().tolist():                       # members with finished episodes
+                mine = columns[member == k]
+                first = self.member_episodes[k]
+                self.member_episodes[k] += mine.shape[0]
+                if self.final[k] is not None:
+                    continue  # a final member's later episodes are not its run's
+                numbers = torch.arange(first + 1, first + 1 + mine.shape[0], dtype=torch.float64)[:, None]
+                frames = torch.full_like(numbers, self.counters["frames"])
+                table = torch.cat((numbers, frames, mine), -1).tolist()
+                rows = [[int(r[0]), int(r[1]), round(r[2], 5), int(r[3]), int(r[4]),
+                         *(round(x, 4) for x in r[5:-1]), int(r[-1])] for r in table]
+                self.member_logs[k].write(rows)
+                self.member_recent[k] = (self.member_recent[k] + [(r[2], bool(r[3])) for r in rows])[-100:]
+        self.counters["episodes"] = min(self.member_episodes)
+        self.split["members"] += time.perf_counter() - start
+
+    def _freeze_finished(self) -> None:
+        """A member that spent ``max_episodes`` is final: keep its actor, counters and curve now."""
+        budget = self.cfg.experiment.max_episodes
+        if not budget:
+            return
+        for k, episodes in enumerate(self.member_episodes):
+            if self.final[k] is None and episodes >= budget:
+                self.final[k] = self._member_snapshot(k)
+
+    def _member_snapshot(self, k: int) -> dict[str, Any]:
+        counters = {**self.counters, "episodes": self.member_episodes[k]}
+        return {"actor": self.learner.actor_state(k), "counters": counters,
+                "curve": self._curve(k)}
+
+    def _curve(self, k: int) -> torch.Tensor:
+        rows = self.member_logs[k].rows()
+        return torch.tensor(rows, dtype=torch.float64).reshape(-1, len(EPISODE_COLUMNS))
+
+    # ---------------------------------------------------------------- logging, evaluation
+    def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
+        log: dict[str, float] = {}
+        for k, seed in enumerate(self.seeds):
+            log.update({f"seed{seed}/train/{name}": float(v[k]) for name, v in stats.items()})
+            recent = self.member_recent[k]
+            if recent:
+                log[f"seed{seed}/train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
+                log[f"seed{seed}/train/success_rate"] = sum(s for _, s in recent) / len(recent)
+        rates = [log[f"seed{s}/train/success_rate"] for s in self.seeds if f"seed{s}/train/success_rate" in log]
+        if rates:
+            log["train/success_rate"] = sum(rates) / len(rates)
+        log["perf/member_updates_per_s"] = (self.k * self.counters["updates"]
+                                            / max(self.split["sampling"] + self.split["update"], 1e-9))
+        log["perf/member_frames_per_s"] = (self.k * self.counters["frames"]
+                                           / max(self.split["env"] + self.split["collection"], 1e-9))
+        self._log(log)
+        if self.cfg.progress:
+            self._bar().update(self.counters, log)
+
+    def _evaluate(self) -> dict[str, float]:
+        """Evaluate every member that is not final (a final member's last evaluation stands)."""
+        from .rollout import evaluate
+
+        rows = []
+        for k, seed in enumerate(self.seeds):
+            final = self.final[k]
+            if final is not None and self.member_evaluations[k] and \
+                    self.member_evaluations[k][-1]["frames"] >= final["counters"]["frames"]:
+                rows.append(self.member_evaluations[k][-1])
+                continue
+            self._eval_actor.load_state_dict(final["actor"] if final is not None else self.learner.actor_state(k))
+            result = evaluate(self._eval_actor, scenario=self.cfg.scenario, n_episodes=self.cfg.experiment.eval_episodes,
+                              seed=self.cfg.eval_seed, device=self.cfg.device)
+            row = {key: float(v) for key, v in result.summary().items()}
+            row["success"], row["safe_success"] = row["success_rate"], row["safe_success_rate"]
+            row["return"] = float(result.episodes["return"].double().mean())
+            row["frames"] = final["counters"]["frames"] if final is not None else self.counters["frames"]
+            self.member_evaluations[k].append(row)
+            self._log({f"seed{seed}/eval/{key}": v for key, v in row.items() if key != "frames"})
+            rows.append(row)
+        summary = {key: sum(r[key] for r in rows) / len(rows) for key in rows[0] if key != "frames"}
+        summary["frames"] = self.counters["frames"]
+        self.evaluations.append(summary)
+        self._log({f"eval/{key}": v for key, v in summary.items() if key != "frames"})
+        return summary
+
+    # ---------------------------------------------------------------- checkpoints
+    def _save(self) -> Path:
+        import time
+
+        self.counters["seconds"] = time.perf_counter() - self.start
+        self.member_counters = [dict(f["counters"]) if f is not None else {**self.counters, "episodes": e}
+                                for f, e in zip(self.final, self.member_episodes)]
+        return super()._save()
+
+    def _state(self) -> dict[str, Any]:
+        state = super()._state()
+        members = []
+        for k, seed in enumerate(self.seeds):
+            final = self.final[k]
+            members.append({
+                "seed": seed, "final": final is not None,
+                "meta": member_meta(self.meta, seed),
+                "config": {**self.resolved, "seed": seed, "population": 1},
+                "counters": self.member_counters[k],
+                "actor": final["actor"] if final is not None else self.learner.actor_state(k),
+                "evaluations": list(self.member_evaluations[k]),
+                "curve": final["curve"] if final is not None else self._curve(k),
+                "episodes_seen": self.member_episodes[k],
+            })
+        state["members"] = members
+        state["actor"] = members[0]["actor"]
+        state["curve"] = members[0]["curve"]
+        return state
+
+    def _restore(self, payload: dict[str, Any]) -> None:
+        for k, member in enumerate(payload["members"]):
+            self.member_episodes[k] = int(member["episodes_seen"])
+            self.member_evaluations[k] = list(member["evaluations"])
+            if member["final"]:
+                self.final[k] = {"actor": member["actor"], "counters": dict(member["counters"]),
+                                 "curve": member["curve"]}
+
+
+__all__ = ["PopulationTraining", "member_meta"]

@@ -1,0 +1,229 @@
+"""Populations (``population=K``): K seeds trained as one, each member as independent as K runs."""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from flock_torchrl import FlockingEnv
+from flock_torchrl.config import ConfigError, TrainConfig
+from flock_torchrl.policies.checkpoint import load_checkpoint, load_policy
+from flock_torchrl.policies.learners import make_learner
+from flock_torchrl.policies.population import MemberSampler, PopulationLearner
+from flock_torchrl.run.launch import train
+from flock_torchrl.run.population import PopulationTraining
+from flock_torchrl.run.shipping import ship_checkpoints
+from flock_torchrl.run.trainer import TRANSITION_KEYS, Training, agentwise_done, make_train_config
+from flock_torchrl.world.population import PopulationEnv
+
+# Short episodes, so that worlds end (and reset) inside a few hundred frames.
+QUICK = ["progress=false", "logger=none", "scenario.max_steps=30", "experiment.eval_episodes=3"]
+
+
+def quick_config(population: int, policy: str = "policy3_g", *extra: str) -> TrainConfig:
+    return TrainConfig.from_config(make_train_config(policy, "tiny", [f"population={population}", *QUICK, *extra]))
+
+
+def transitions(policy: str = "policy3_g", steps: int = 120) -> tuple[FlockingEnv, TrainConfig, TensorDict]:
+    cfg = quick_config(1, policy)
+    env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=3)
+    td = env.rollout(steps, break_when_any_done=False)
+    return env, cfg, agentwise_done(td, env.n_agents).select(*TRANSITION_KEYS, strict=False).reshape(-1)
+
+
+def same_rows(a: list[dict], b: list[dict]) -> bool:
+    """Evaluation rows equal to the last bit (NaN, e.g. ``t_goal`` without a success, equals NaN)."""
+    return len(a) == len(b) and all(
+        x.keys() == y.keys() and all(x[k] == y[k] or (math.isnan(x[k]) and math.isnan(y[k])) for k in x)
+        for x, y in zip(a, b))
+
+
+# ---------------------------------------------------------------------------- config
+@pytest.mark.parametrize("override, message", [
+    (["policy=policyp_g"], "off-policy"),
+    (["experiment=mixed"], "one swarm size"),
+    (["experiment.workers=2", "experiment.num_envs=4"], "workers must be 1"),
+    (["compile=loss"], "eagerly"),
+    (["population=0"], "population"),
+])
+def test_a_population_refuses_what_it_cannot_train(override, message):
+    items = ["population=3", *override] if override[0] != "population=0" else override
+    with pytest.raises(ConfigError, match=message):
+        TrainConfig.from_config(make_train_config("policy3_g", "tiny", items))
+
+
+def test_population_seeds_are_consecutive():
+    assert quick_config(4, "policy3_g", "seed=7").seeds == [7, 8, 9, 10]
+
+
+# ---------------------------------------------------------------------------- env
+def test_member_worlds_spawn_as_a_solo_env_seeded_alike():
+    """The same starts and goals, bit for bit; the sensing of them agrees up to float round-off
+    (a batch of 6 worlds is computed with other vector widths than one of 2)."""
+    scenario = quick_config(1).train_scenario
+    start = PopulationEnv(scenario, 3, 2, [10, 20, 30], extras=("physics",)).reset()
+    for k, seed in enumerate((10, 20, 30)):
+        solo = FlockingEnv(scenario, num_envs=2, seed=seed, extras=("physics",)).reset()
+        mine = start[2 * k:2 * k + 2]
+        assert torch.equal(mine["agents", "position"], solo["agents", "position"])
+        assert torch.equal(mine["goal"], solo["goal"])
+        torch.testing.assert_close(mine["agents", "observation"], solo["agents", "observation"])
+
+
+def test_a_members_resets_leave_the_other_members_worlds_alone():
+    """Member 0 resets its worlds again and again in one run only: member 1's next spawns are
+    the same in both runs (its own generator)."""
+    scenario = quick_config(1).train_scenario
+    a, b = PopulationEnv(scenario, 2, 2, [1, 2]), PopulationEnv(scenario, 2, 2, [1, 2])
+    a.reset()
+    b.reset()
+    only_member0 = TensorDict({"_reset": torch.tensor([True, False, False, False])[:, None]}, [4])
+    for _ in range(5):
+        a.reset(only_member0.clone())
+    member1 = TensorDict({"_reset": torch.tensor([False, False, True, True])[:, None]}, [4])
+    a.reset(member1.clone())
+    b.reset(member1.clone())
+    for key in ("position", "heading", "goal"):
+        assert torch.equal(a.world[key][2:], b.world[key][2:]), key
+    assert not torch.equal(a.world["position"][:1], b.world["position"][:1])
+
+
+def test_population_env_state_round_trips_every_generator():
+    scenario = quick_config(1).train_scenario
+    env = PopulationEnv(scenario, 2, 2, [1, 2])
+    env.reset()
+    state = copy.deepcopy(env.get_state())
+    after = env.reset(TensorDict({"_reset": torch.ones(4, 1, dtype=torch.bool)}, [4]))
+    other = PopulationEnv(scenario, 2, 2, [5, 6])
+    other.set_state(state)
+    again = other.reset(TensorDict({"_reset": torch.ones(4, 1, dtype=torch.bool)}, [4]))
+    assert torch.equal(after["agents", "observation"], again["agents", "observation"])
+
+
+# ---------------------------------------------------------------------------- learner
+def test_member_sampler_draws_each_members_rows_apart():
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(50), sampler=MemberSampler(3), batch_size=400)
+    rows = torch.arange(50.0)[:, None] * 10 + torch.arange(3.0)        # row r, member k: 10 r + k
+    buffer.extend(TensorDict({"x": rows}, [50, 3]))
+    torch.manual_seed(0)
+    x = buffer.sample()["x"]
+    assert x.shape == (400, 3)
+    assert torch.equal(x.remainder(10), torch.arange(3.0).expand(400, 3))  # column k holds member k's rows
+    assert not torch.equal(x[:, 0] - 0, x[:, 1] - 1)                        # drawn independently
+
+
+@pytest.mark.parametrize("policy", ["policy3_g", "policyd_g"])
+def test_members_take_the_update_k_solo_learners_take(policy, monkeypatch):
+    """Three members fed the batches three solo learners get, with the same draws (here none:
+    the actor's noise is zero on both sides), take the same updates up to float round-off
+    (vmap's batched kernels round differently)."""
+    monkeypatch.setattr(torch, "randn_like", lambda x, **kwargs: torch.zeros_like(x))
+    env, cfg, td = transitions(policy)
+    seeds = [0, 1, 2]
+    torch.manual_seed(0)
+    pop = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, seeds)
+    solos = []
+    for seed in seeds:
+        torch.manual_seed(seed)
+        solos.append(make_learner(env, cfg.algo, cfg.policy.critic_input))
+    for k, solo in enumerate(solos):  # same initial weights: member k is a solo learner seeded k
+        assert all(torch.equal(v, pop.actor_state(k)[n]) for n, v in solo.actor.state_dict().items())
+    for step in range(3):
+        batches = [td[(step * 3 + k) * 13:(step * 3 + k + 1) * 13] for k in range(3)]
+        got = pop.update(torch.stack(batches, 1))
+        for k, solo in enumerate(solos):
+            want = solo.update(batches[k])
+            for key in want:
+                torch.testing.assert_close(got[key][k], want[key], rtol=1e-4, atol=1e-5)
+    for k, solo in enumerate(solos):
+        for name, value in solo.actor.state_dict().items():
+            torch.testing.assert_close(pop.actor_state(k)[name], value, rtol=1e-4, atol=1e-5)
+
+
+def test_a_population_of_one_updates_exactly_as_its_solo_learner():
+    env, cfg, td = transitions()
+    torch.manual_seed(0)
+    one = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0])
+    torch.manual_seed(0)
+    solo = make_learner(env, cfg.algo, cfg.policy.critic_input)
+    for step in range(3):
+        batch = td[step * 26:(step + 1) * 26]
+        torch.manual_seed(100 + step)
+        got = one.update(batch.unsqueeze(1))
+        torch.manual_seed(100 + step)
+        want = solo.update(batch)
+        assert all(torch.equal(got[k][0], want[k]) for k in want)
+    assert all(torch.equal(v, one.actor_state(0)[n]) for n, v in solo.actor.state_dict().items())
+
+
+def test_perturbing_one_member_leaves_the_others_update_unchanged():
+    env, cfg, td = transitions()
+    batch = torch.stack([td[k * 26:(k + 1) * 26] for k in range(3)], 1)
+    torch.manual_seed(0)
+    a = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1, 2])
+    torch.manual_seed(0)
+    b = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1, 2])
+    with torch.no_grad():  # member 1's weights and data changed in b only
+        for value in b.params.get("actor_network_params").values(True, True):
+            value[1].add_(0.05)
+    changed = batch.clone()
+    changed["agents", "observation"][:, 1] += 0.3
+    torch.manual_seed(5)
+    got_a = a.update(batch)
+    torch.manual_seed(5)
+    got_b = b.update(changed)
+    for k in (0, 2):
+        assert all(torch.equal(got_a[key][k], got_b[key][k]) for key in got_a)
+        assert all(torch.equal(v, b.actor_state(k)[n]) for n, v in a.actor_state(k).items())
+    assert not torch.equal(got_a["loss_qvalue"][1], got_b["loss_qvalue"][1])
+
+
+# ---------------------------------------------------------------------------- runs
+def test_a_population_of_one_is_bitwise_the_solo_run(tmp_path):
+    cfg = quick_config(1)
+    solo = Training(cfg, tmp_path / "solo").run()
+    one = PopulationTraining(cfg, tmp_path / "pop").run()
+    assert (solo.frames, solo.episodes, solo.updates) == (one.frames, one.episodes, one.updates)
+    assert solo.episodes > 0
+    a = load_checkpoint(tmp_path / "solo" / "last.pt")
+    b = load_checkpoint(tmp_path / "pop" / "last.pt")
+    assert all(torch.equal(v, b["members"][0]["actor"][k]) for k, v in a["actor"].items())
+    assert (tmp_path / "solo" / "episodes.csv").read_text() == (tmp_path / "pop" / "seed0" / "episodes.csv").read_text()
+    assert same_rows(a["evaluations"], b["members"][0]["evaluations"])
+
+
+def test_a_population_trains_ships_and_resumes_bitwise(tmp_path):
+    """population=2 under the tiny recipe: each member's policy ships as seed<k>.pt; a run stopped
+    at its first checkpoint and resumed ends bit-identical to the uninterrupted one."""
+    runs = tmp_path / "runs" / "tiny" / "paper_fit" / "policy3_g"
+    cfg = quick_config(2, "policy3_g", "seed=4", "reading=paper_fit")
+    whole = train(cfg, runs / "seed4__population-2")
+    assert whole.frames == 160 and whole.updates > 0
+    half = quick_config(2, "policy3_g", "seed=4", "reading=paper_fit", "experiment.max_frames=64")
+    train(half, tmp_path / "resumed")
+    again = quick_config(2, "policy3_g", "seed=4", "reading=paper_fit", "resume=true")
+    train(again, tmp_path / "resumed")
+    a = load_checkpoint(runs / "seed4__population-2" / "last.pt")
+    b = load_checkpoint(tmp_path / "resumed" / "last.pt")
+    for ma, mb in zip(a["members"], b["members"]):
+        assert all(torch.equal(v, mb["actor"][k]) for k, v in ma["actor"].items())
+        assert same_rows(ma["evaluations"][-1:], mb["evaluations"][-1:])  # the half run evaluated at its end too
+    for seed in (4, 5):
+        assert ((runs / "seed4__population-2" / f"seed{seed}" / "episodes.csv").read_text()
+                == (tmp_path / "resumed" / f"seed{seed}" / "episodes.csv").read_text())
+    assert not torch.equal(a["members"][0]["actor"]["module.0.module.0.0.weight"],
+                           a["members"][1]["actor"]["module.0.module.0.0.weight"])
+    shipped = ship_checkpoints("paper_fit", "tiny", tmp_path / "runs", tmp_path / "ckpt", "paper",
+                               tmp_path / "ckpt" / "paper_fit" / "paper_recipe", log=lambda _: None)
+    names = sorted(p.name for p in shipped)
+    assert names == ["seed4.pt", "seed5.pt"]
+    for k, seed in enumerate((4, 5)):
+        policy = load_policy(tmp_path / "ckpt" / "paper_fit" / "policy3_g" / f"seed{seed}.pt")
+        assert policy.flock_meta["seed"] == seed
+        assert all(torch.equal(v, a["members"][k]["actor"][n]) for n, v in policy.actor.state_dict().items())
