@@ -11,9 +11,9 @@ READING ?=
 R_ARG   := $(if $(READING),reading=$(READING),)
 EPISODES ?= 500
 
-.PHONY: install test test-all demo train train-all check-train-all train-paper train-paper-all train-mixed ship-checkpoints \
+.PHONY: install test test-all demo train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
         reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-paper-recipe \
-        publish-scaling tune-baselines \
+        publish-scaling publish-claims tune-baselines \
         benchmark scaling clean
 
 $(STAMP): pyproject.toml
@@ -82,6 +82,21 @@ train-paper-all: $(STAMP)
 	printf '%s\n' $(PAPER_RUNS) | tr ':' ' ' | xargs -P 2 -n 2 sh -c 'OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py \
 		experiment=paper policy=$$0 seed=$$1 reading=paper_fit progress=false compile=true resume=auto'
 
+# Ten seeds of a policy as one population (docs/population.md): seeds 0-9 of the eight policies the
+# paper's claims rest on, under the paper's recipe (paper_fit), two populations at a time, each
+# resuming where it stopped (resume=auto); then the nine off-policy learners under `fast`.
+# PolicyP-G (PPO) trains no population: its ten fast seeds are `make train-all SEEDS=0,...,9 LEARNED=policyp_g`.
+POPULATION ?= 10
+PAPER_POPULATIONS := policy3_g policy3 policy1_g policy1 policy2_g policy2 policy4_g policy5_g
+FAST_POPULATIONS  := policy1 policy1_g policy2 policy2_g policy3 policy3_g policy4_g policy5_g policyd_g
+train-paper-populations: $(STAMP)
+	printf '%s\n' $(PAPER_POPULATIONS) | xargs -P 2 -I{} sh -c 'OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py \
+		experiment=paper policy={} seed=0 population=$(POPULATION) reading=paper_fit progress=false resume=auto'
+
+train-fast-populations: $(STAMP)
+	printf '%s\n' $(FAST_POPULATIONS) | xargs -P 2 -I{} sh -c 'OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py \
+		experiment=fast policy={} seed=0 population=$(POPULATION) progress=false resume=auto $(R_ARG)'
+
 # One Policy3-G trained on 5, 9 and 20 UAVs at once (experiment=mixed), three seeds, two at a time.
 train-mixed: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=mixed policy=policy3_g \
@@ -124,6 +139,15 @@ publish: $(STAMP)
 		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r \
 			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
 	done
+	$(MAKE) --no-print-directory publish-claims
+
+# The paper's claims over the seeds of each published Table III (docs/specification.md section 10):
+# results/<reading>/table3[_paper_recipe]_claims.md, from the *_seeds.csv tables publish writes.
+publish-claims: $(STAMP)
+	for f in results/*/table3_seeds.csv results/*/table3_paper_recipe_seeds.csv; do \
+		test -f $$f || continue; \
+		$(PYTHON) -m flock_torchrl.report.seeds $$f $${f%_seeds.csv}_claims.md || exit 1; \
+	done
 
 # The parts of publish that change when paper-recipe checkpoints are shipped, alone (paper_fit):
 # the paper recipe's Table III, the fast Table III (its "Policy3-G (paper recipe)" row pools
@@ -133,6 +157,7 @@ publish-paper-recipe: $(STAMP)
 	$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=paper_fit \
 		hydra.run.dir=results/paper_fit
 	$(PYTHON) scripts/figures.py reading=paper_fit figs=[4] hydra.run.dir=figures/paper_fit
+	$(MAKE) --no-print-directory publish-claims
 
 publish-scaling: $(STAMP)
 	for r in literal paper_fit; do \
