@@ -169,10 +169,11 @@ publish-scaling: $(STAMP)
 tune-baselines: $(STAMP)
 	$(PYTHON) scripts/tune_baselines.py $(R_ARG)
 
-# Throughput ratios against baselines run in the same process (VmasEnv needs the bench extra).
+# Throughput ratios against baselines run in the same process (VmasEnv needs the bench extra);
+# benchmarks/ is a tool of the repository, not of the installed package. ARGS: e.g. quick=true.
 benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"
-	OMP_NUM_THREADS=1 $(PYTHON) scripts/benchmark.py
+	OMP_NUM_THREADS=1 $(PYTHON) -m benchmarks.run $(ARGS)
 
 # Policy3-G (trained with 5 UAVs), and the mixed-size one where shipped, flown by 5 to 100
 # UAVs, into outputs/scaling/<reading>/.

@@ -5,7 +5,7 @@
 The package reads from the bottom up: ``config`` (the schemas and the one composer),
 ``world/`` (the simulator and its TorchRL env), ``policies/`` (networks, learners,
 baselines, checkpoints, the registry), ``run/`` (training, evaluation), ``report/``
-(tables, figures, benchmarks); each layer imports only those below it.
+(tables, figures); each layer imports only those below it.
 """
 
 from .config import ConfigError, ScenarioConfig, TrainConfig, compose, scenario_config

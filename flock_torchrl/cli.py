@@ -32,7 +32,7 @@ from typing import Any, Callable
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from .config import (CONF_DIR, APP_SCHEMAS, BenchmarkConfig, ConfigError, EvaluateConfig, FiguresConfig,
+from .config import (CONF_DIR, APP_SCHEMAS, ConfigError, EvaluateConfig, FiguresConfig,
                      ReproduceConfig, ScalingConfig, Schema, ShipConfig, TrainConfig, TuneConfig)
 
 EXIT_ERROR = 2
@@ -191,7 +191,7 @@ def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
             cfg.device, out, log=_say, others=list(cfg.others))
 
 
-# -- ship, tune, benchmark
+# -- ship, tune
 def _prepare_ship(cfg: ShipConfig, out: Path) -> None:
     if not Path(cfg.runs_dir).is_dir():
         raise ConfigError("runs_dir", f"{cfg.runs_dir} is not a folder of runs")
@@ -229,16 +229,6 @@ def _run_tune(cfg: TuneConfig, out: Path) -> None:
     tune_app(cfg, out, log=_say)
 
 
-def _nothing(cfg: Any, out: Path) -> None:
-    pass
-
-
-def _run_benchmark(cfg: BenchmarkConfig, out: Path) -> None:
-    from .report.benchmark import benchmark_app
-
-    benchmark_app(cfg, out)
-
-
 APPS: dict[str, App] = {
     "train": App(TrainConfig, _prepare_train, _run_train),
     "evaluate": App(EvaluateConfig, _prepare_evaluate, _run_evaluate),
@@ -247,7 +237,6 @@ APPS: dict[str, App] = {
     "scaling": App(ScalingConfig, _prepare_scaling, _run_scaling),
     "ship": App(ShipConfig, _prepare_ship, _run_ship),
     "tune_baselines": App(TuneConfig, _prepare_tune, _run_tune),
-    "benchmark": App(BenchmarkConfig, _nothing, _run_benchmark),
 }
 assert set(APPS) == set(APP_SCHEMAS)
 
@@ -502,11 +491,6 @@ def tune_baselines_main() -> Any:
     return main("tune_baselines")
 
 
-def benchmark_main() -> Any:
-    """``scripts/benchmark.py`` / ``make benchmark``."""
-    return main("benchmark")
-
-
-__all__ = ["APPS", "App", "AppError", "PreRunCheck", "benchmark_main", "checked", "evaluate_main", "fail",
+__all__ = ["APPS", "App", "AppError", "PreRunCheck", "checked", "evaluate_main", "fail",
            "figures_main", "main", "reproduce_main", "scaling_main", "ship_main", "sweep_jobs",
            "train_main", "tune_baselines_main"]

@@ -957,20 +957,6 @@ class TuneConfig(WorldApp):
 
 
 @dataclass
-class BenchmarkConfig(Schema):
-    """``conf/benchmark.yaml``: throughput, each figure against a baseline in the same process."""
-
-    quick: bool = MISSING
-    device: str = MISSING
-    threads: int = MISSING
-
-    def check(self, prefix: str | None = None) -> "BenchmarkConfig":
-        check_device("device", self.device)
-        check_threads("threads", self.threads)
-        return self._mark_checked()
-
-
-@dataclass
 class ShipConfig(WorldApp):
     """``conf/ship.yaml``: the named step that exports finished runs into ``checkpoints/``."""
 
@@ -991,7 +977,7 @@ class ShipConfig(WorldApp):
 
 APP_SCHEMAS: dict[str, type[Schema]] = {
     "train": TrainConfig, "evaluate": EvaluateConfig, "reproduce": ReproduceConfig, "figures": FiguresConfig,
-    "scaling": ScalingConfig, "tune_baselines": TuneConfig, "benchmark": BenchmarkConfig, "ship": ShipConfig,
+    "scaling": ScalingConfig, "tune_baselines": TuneConfig, "ship": ShipConfig,
 }
 
 

@@ -145,7 +145,7 @@ def test_every_package_folder_is_packaged():
 
 
 @pytest.mark.parametrize("script", ["train.py", "evaluate.py", "reproduce.py", "figures.py", "tune_baselines.py",
-                                    "benchmark.py", "ship.py", "scaling.py"])
+                                    "ship.py", "scaling.py"])
 def test_every_script_is_a_hydra_app(script, tmp_path):
     proc = run(script, "--cfg", "job", cwd=tmp_path)
     assert proc.stdout.strip() and not (tmp_path / "outputs").exists() and not (tmp_path / "runs").exists()

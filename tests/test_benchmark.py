@@ -1,7 +1,19 @@
-"""The benchmark's rows run and print (their figures are read from `make benchmark`, never
-asserted: a timed unit test would measure the machine, not the code)."""
+"""The benchmarks of the repository (``benchmarks/``, ``make benchmark``): their rows run and
+print, their Hydra app checks its config first (their figures are read from `make benchmark`,
+never asserted: a timed unit test would measure the machine, not the code)."""
 
-from flock_torchrl.report.benchmark import format_rows, learner_rows
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import torch
+from helpers import ROOT, script_env
+
+from benchmarks.step import stepper
+from benchmarks.throughput import BenchmarkConfig, CheckFirst, format_rows, learner_rows
+from flock_torchrl import ConfigError, FlockingEnv
 
 
 def test_the_update_rows_compare_eager_compiled_and_vectorised_kernels():
@@ -12,3 +24,64 @@ def test_the_update_rows_compare_eager_compiled_and_vectorised_kernels():
                      "SAC updates, batch 128 (paper; scalar vs vectorised compiled kernels)"]
     assert all(row.ours > 0 and row.baseline > 0 for row in rows)
     assert "scalar vs vectorised" in format_rows(rows)
+
+
+def benchmark(*args: str, cwd, module: bool = True, **env: str) -> subprocess.CompletedProcess:
+    """``python -m benchmarks.run <args>`` (or ``python <root>/benchmarks/run.py``) in ``cwd``."""
+    command = ["-m", "benchmarks.run"] if module else [str(ROOT / "benchmarks" / "run.py")]
+    return subprocess.run([sys.executable, *command, *args], cwd=cwd, env=script_env(**env), capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_a_bad_benchmark_value_is_one_line_before_any_folder(tmp_path):
+    # Run as a file, with nothing on PYTHONPATH: the script finds the repository's root itself,
+    # and its callback checks the config before Hydra creates outputs/benchmark.
+    proc = benchmark("threads=-1", cwd=tmp_path, module=False, PYTHONPATH="")
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: threads: "), proc.stderr
+    assert not (tmp_path / "outputs").exists()
+
+
+@pytest.mark.slow
+def test_the_benchmark_app_shows_its_config_as_a_module(tmp_path):
+    proc = benchmark("threads=2", "--cfg", "job", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "quick: false" in proc.stdout and "threads: 2" in proc.stdout
+    assert not (tmp_path / "outputs").exists()
+
+
+@pytest.mark.parametrize("override, key", [("device=tpu", "device"), ("quick=maybe", "quick"),
+                                           ("+extra=1", "extra")])
+def test_the_benchmark_callback_reports_a_bad_value_in_one_line(override, key, capsys):
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(ROOT / "benchmarks" / "conf"), version_base=None):
+        cfg = compose("benchmark", [override])
+    with pytest.raises(SystemExit) as stop:
+        CheckFirst().on_run_start(cfg)
+    assert stop.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {key}"), lines
+
+
+def test_the_benchmark_config_is_checked():
+    cfg = BenchmarkConfig.from_config({"quick": True, "device": "cpu", "threads": 0})
+    assert cfg.quick is True and cfg.threads == 0
+    with pytest.raises(ConfigError, match="threads"):
+        BenchmarkConfig.from_config({"quick": True, "device": "cpu", "threads": 2000})
+
+
+@pytest.mark.parametrize("api", ["step", "_step", "advance"])
+def test_the_step_benchmark_steps_from_one_fixed_state(api):
+    """Each timed step starts from the same world state: the state the env had when the
+    stepper was made is never written to, while the step itself runs (the env's world moves on)."""
+    env = FlockingEnv("train", 2, "cpu", 0, policy_id="policy3_g")
+    go = stepper(env, 2, api)
+    fixed = env.world
+    start = fixed["position"].clone()
+    go()
+    go()
+    assert torch.equal(fixed["position"], start)
+    if api != "advance":  # the pure step function returns its state; env.step stores it
+        assert env.world is not fixed and not torch.equal(env.world["position"], start)

@@ -8,6 +8,8 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
+from helpers import BAD_SCENARIO_VALUES
+
 from flock_torchrl import FlockingEnv
 from flock_torchrl.world.geometry import distance_to_obstacles, Obstacles
 
@@ -399,3 +401,36 @@ def test_a_baseline_on_an_env_without_its_extras_names_them():
         make_policy("policy_ma", env)
     ok = FlockingEnv("s1", num_envs=2, seed=0, policy_id="policy_ma", extras=("physics", "laser"))
     assert make_policy("policy_ma", ok)(ok.reset())["agents", "action"].shape == (2, 5, 2)
+
+
+# ---------------------------------------------------------------- bad input at construction and step
+@pytest.mark.parametrize("overrides, field", BAD_SCENARIO_VALUES,
+                         ids=[f"{f}-{i}" for i, (_, f) in enumerate(BAD_SCENARIO_VALUES)])
+def test_bad_values_are_refused_at_construction_naming_the_field(overrides, field):
+    # ConfigError is a ValueError; n_uavs=60 in a 3 m disc is the spawn's refusal, made by every env.
+    with pytest.raises(ValueError, match=field):
+        FlockingEnv("train", **overrides)
+
+
+def test_unknown_scenario_and_unknown_field_are_refused():
+    with pytest.raises(ValueError, match="nowhere"):
+        FlockingEnv("nowhere")
+    with pytest.raises(ValueError, match="wind_speed"):
+        FlockingEnv("train", wind_speed=3.0)
+
+
+def test_bad_num_envs():
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="num_envs"):
+            FlockingEnv("train", num_envs=bad)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_actions_raise_at_step(make_env, bad):
+    env = make_env("train", num_envs=2)
+    td = env.reset()
+    action = torch.zeros(2, 5, 2)
+    action[1, 3, 0] = bad
+    td["agents", "action"] = action
+    with pytest.raises(ValueError, match="action"):
+        env.step(td)

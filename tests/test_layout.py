@@ -1,4 +1,6 @@
-"""The package's layers: imports only point down config/io -> world -> policies -> run -> report -> cli."""
+"""The package's layers: imports only point down config/io -> world -> policies -> run -> report -> cli;
+the repository's tools above it (``benchmarks/``, ``scripts/``) use its public names and nothing
+in the package imports them."""
 
 import ast
 from pathlib import Path
@@ -6,6 +8,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "flock_torchrl"
+ROOT = PACKAGE.parent
+TOOLS = [*(ROOT / "benchmarks").rglob("*.py"), *(ROOT / "scripts").glob("*.py")]
 LAYERS = ["config", "io", "world", "policies", "run", "report", "cli"]
 RANK = {"config": 0, "io": 0, "world": 1, "policies": 2, "run": 3, "report": 4, "cli": 5}
 
@@ -56,8 +60,43 @@ def test_no_private_name_crosses_a_module():
                 assert not private, f"{path.relative_to(PACKAGE)} imports {private} from {node.module}"
 
 
+def test_the_package_never_imports_the_repositorys_tools():
+    """``benchmarks/`` and ``scripts/`` are not in the wheel: a module of the package that
+    imported them would work in a checkout and fail once installed."""
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            tools = [n for n in names if n.split(".")[0] in ("benchmarks", "scripts", "tests")]
+            assert not tools, f"{path.relative_to(ROOT)} imports {tools}"
+
+
+def test_the_tools_use_only_public_names_of_the_package():
+    assert any(p.parent.name == "benchmarks" for p in TOOLS)
+    for path in TOOLS:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in ("flock_torchrl", "benchmarks"):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                hidden = [part for part in node.module.split(".") if part.startswith("_")]
+                assert not private and not hidden, f"{path.relative_to(ROOT)} imports {private or hidden}"
+
+
+def test_benchmarks_are_outside_the_wheel_and_every_console_command_exists():
+    """``benchmarks/`` is a tool of the repository (``make benchmark``), not a package of the
+    wheel; every console command of pyproject.toml names a function the package has."""
+    import importlib
+
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert not [p for p in project["tool"]["setuptools"]["packages"] if "bench" in p]
+    for command, target in project["project"]["scripts"].items():
+        module, function = target.split(":")
+        assert callable(getattr(importlib.import_module(module), function, None)), f"{command} -> {target}"
+    assert "-m benchmarks.run" in (ROOT / "Makefile").read_text()
+
+
 DOC_SOURCES = [*PACKAGE.rglob("*.py"), *(PACKAGE.parent / "conf").rglob("*.yaml"), *(PACKAGE.parent / "docs").glob("*.md"),
-               PACKAGE.parent / "README.md", *(PACKAGE.parent / "scripts").glob("*.py")]
+               PACKAGE.parent / "README.md", *TOOLS, *(ROOT / "benchmarks").rglob("*.yaml")]
 
 
 def test_docs_name_files_and_sections_that_exist():

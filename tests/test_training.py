@@ -177,7 +177,7 @@ def test_compiled_learner_is_its_eager_twin():
     ones up to float round-off, and the compiled learner saves and restores its state."""
     from flock_torchrl.config import algo_config, compose
     from flock_torchrl.policies.learners import SACLearner
-    from flock_torchrl.report.benchmark import replay_batches
+    from benchmarks.throughput import replay_batches
 
     env, batches = replay_batches(128, 3)
     cfg = algo_config(compose("train", ["experiment=paper"]).algo)
@@ -230,7 +230,7 @@ def test_two_compiled_learners_of_different_sizes_share_a_process():
 
     from flock_torchrl.config import algo_config, compose
     from flock_torchrl.policies.learners import SACLearner
-    from flock_torchrl.report.benchmark import replay_batches
+    from benchmarks.throughput import replay_batches
 
     env, batches = replay_batches(128, 2)
     cfg = algo_config(compose("train", ["experiment=paper"]).algo)

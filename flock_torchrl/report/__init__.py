@@ -1,2 +1,2 @@
 """Reporting: the paper's tables with the fidelity score, its figures, baseline tuning and
-throughput benchmarks."""
+swarm-size scaling (the throughput benchmarks are in the repository's ``benchmarks/``)."""

@@ -1,5 +1,6 @@
-"""One composition: every YAML against its schema, what --cfg job prints is what runs,
-bad names and values fail at config time naming the key."""
+"""One composition: every app's, policy's, experiment's and learner's YAML against its schema,
+what --cfg job prints is what runs, bad names and values fail at config time naming the key
+(the scenario schema and the readings: tests/test_config_scenario.py)."""
 
 import dataclasses
 import math
@@ -183,20 +184,6 @@ def test_rule_based_policy_is_not_trainable():
     cfg.policy = OmegaConf.to_container(compose("world", ["policy=policy_ma"]).policy)
     with pytest.raises(ConfigError, match="rule-based"):
         check_train_config(cfg)
-
-
-def test_readings_set_the_field_of_view_convention_and_the_spawn():
-    literal = scenario_config("train", reading="literal", policy="policy3_g")
-    fit = scenario_config("train", reading="paper_fit", policy="policy3_g")
-    assert (literal.half_fov, fit.half_fov) == (pytest.approx(math.pi / 4), pytest.approx(math.pi / 2))
-    assert (literal.spawn_separation, fit.spawn_separation) == (1.0, 2.0)  # paper_fit: d_safe
-    # Spawn radius: literal 3 m up to N = 9, then 3 sqrt(N / 9); paper_fit 3 sqrt(N / 5).
-    for n, lit, pf in [(5, 3.0, 3.0), (9, 3.0, 3 * math.sqrt(9 / 5)), (20, 3 * math.sqrt(20 / 9), 6.0),
-                       (3, 3.0, 3 * math.sqrt(3 / 5))]:
-        assert scenario_config("train", reading="literal", n_uavs=n).swarm_spawn_radius == pytest.approx(lit)
-        assert scenario_config("train", reading="paper_fit", n_uavs=n).swarm_spawn_radius == pytest.approx(pf)
-    # Full field of view stays unlimited under both.
-    assert scenario_config("train", reading="paper_fit", policy="policy1").half_fov >= math.pi
 
 
 def test_reading_is_one_choice_in_every_app():

@@ -4,22 +4,27 @@ Every step starts from the same world state (no episode ends, no resets in the t
 takes fixed random actions; candidates alternate round by round in one process and each keeps
 its best round, so load from other processes hits all of them alike (read the ratios).
 
-    python scripts/bench_step.py                       # B = 1, 64, 1024, 4096; N = 5 .. 100
-    python scripts/bench_step.py --batches 1 1024 --sizes --rounds 7 --vmas
-    python scripts/bench_step.py --profile 1024        # torch.profiler table of one compiled step
+From the repository's root:
+
+    python -m benchmarks.step                          # B = 1, 64, 1024, 4096; N = 5 .. 100
+    python -m benchmarks.step --batches 1 1024 --sizes --rounds 7 --vmas
+    python -m benchmarks.step --profile 1024           # torch.profiler table of one compiled step
 """
 
 from __future__ import annotations
 
 import argparse
-import math
-import time
+import sys
+from pathlib import Path
 
-import torch
+if not __package__:  # `python benchmarks/step.py`: the repository's root, so `benchmarks` imports
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from flock_torchrl import FlockingEnv
-from flock_torchrl.report.benchmark import paired  # best of alternated rounds, after a warm-up
-from flock_torchrl.world.state import STATE_KEYS
+import torch  # noqa: E402
+
+from benchmarks.throughput import paired  # noqa: E402  best of alternated rounds, after a warm-up
+from flock_torchrl import FlockingEnv  # noqa: E402
+from flock_torchrl.world.state import STATE_KEYS  # noqa: E402
 
 
 def stepper(env: FlockingEnv, steps: int, api: str = "step"):

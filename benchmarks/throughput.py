@@ -14,6 +14,10 @@
 
 Timings alternate the candidates and keep each one's best of several repetitions, so load
 from other processes hits both sides alike; the ratios are what to read.
+
+A tool of the repository, not of the installed package (``benchmarks/`` is not in the wheel;
+nothing in ``flock_torchrl`` imports it): ``make benchmark`` runs :mod:`benchmarks.run`, a Hydra
+app on ``benchmarks/conf/benchmark.yaml`` whose config is :class:`BenchmarkConfig`.
 """
 
 from __future__ import annotations
@@ -21,17 +25,52 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from pathlib import Path
+from typing import Any, Callable
 
 import torch
+from hydra.experimental.callback import Callback
+from omegaconf import MISSING
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
-from ..config import algo_config, compose
-from ..io import write_text
-from ..policies.learners import SACLearner, compiled
-from ..policies.models import ACTION, LOG_PROB
-from ..run.trainer import TRANSITION_KEYS, agentwise_done
-from ..world.env import FlockingEnv
+from flock_torchrl.cli import fail
+from flock_torchrl.config import ConfigError, Schema, algo_config, check_device, check_threads, compose
+from flock_torchrl.io import write_text
+from flock_torchrl.policies.learners import SACLearner, compiled
+from flock_torchrl.policies.models import ACTION, LOG_PROB
+from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+from flock_torchrl.world.env import FlockingEnv
+
+
+@dataclass
+class BenchmarkConfig(Schema):
+    """``benchmarks/conf/benchmark.yaml``: throughput, each figure against a baseline in the same process."""
+
+    quick: bool = MISSING
+    device: str = MISSING
+    threads: int = MISSING
+
+    def check(self, prefix: str | None = None) -> "BenchmarkConfig":
+        check_device("device", self.device)
+        check_threads("threads", self.threads)
+        return self._mark_checked()
+
+
+def checked(cfg: Any) -> BenchmarkConfig:
+    """``cfg`` (the composed Hydra config) as a checked :class:`BenchmarkConfig`; a bad value
+    prints one line naming its key and exits with status 2."""
+    try:
+        return BenchmarkConfig.from_config(cfg)
+    except ConfigError as exc:
+        fail(exc)
+        raise  # unreachable: fail exits
+
+
+class CheckFirst(Callback):
+    """The config is checked before Hydra creates the output folder (``hydra.callbacks``)."""
+
+    def on_run_start(self, config: Any, **kwargs: Any) -> None:
+        checked(config)
 
 
 @dataclass
@@ -238,8 +277,8 @@ def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[
     time split."""
     import tempfile
 
-    from ..run.launch import train
-    from ..run.trainer import make_train_config
+    from flock_torchrl.run.launch import train
+    from flock_torchrl.run.trainer import make_train_config
 
     rates, splits = {}, []
     for name, compile in (("eager", False), ("compiled", True)):
@@ -299,7 +338,9 @@ def format_rows(rows: list[Row]) -> str:
     return "\n".join(lines)
 
 
-def benchmark_app(cfg, out_dir) -> None:
+def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
+    """Every row (``cfg``: a checked :class:`BenchmarkConfig`), printed and written to
+    ``out_dir/benchmark.md``."""
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     notes: list[str] = []
@@ -309,5 +350,5 @@ def benchmark_app(cfg, out_dir) -> None:
     write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
 
 
-__all__ = ["PreviousSACUpdate", "Row", "benchmark_app", "env_rows", "format_rows", "learner_rows", "loop_rows", "paired",
-           "run_all", "scale_rows"]
+__all__ = ["BenchmarkConfig", "CheckFirst", "PreviousSACUpdate", "Row", "benchmark_app", "checked", "env_rows",
+           "format_rows", "learner_rows", "loop_rows", "paired", "replay_batches", "run_all", "scale_rows"]

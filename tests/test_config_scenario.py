@@ -1,13 +1,14 @@
-"""Scenario configs: every YAML composes against ScenarioConfig; bad values fail at construction, naming the field."""
+"""Scenario configs: every YAML composes against ScenarioConfig, the readings, bad values fail at
+construction naming the field (the env's own refusals: tests/test_env.py)."""
 
 import dataclasses
 import math
 
 import pytest
-import torch
+from helpers import BAD_SCENARIO_VALUES as BAD
 from omegaconf import OmegaConf
 
-from flock_torchrl import ConfigError, FlockingEnv, ScenarioConfig
+from flock_torchrl import ConfigError, ScenarioConfig
 from flock_torchrl.config import CONF_DIR, SCENARIO_FIELDS, available, scenario_config
 
 
@@ -83,44 +84,14 @@ def test_overrides_and_other_sources():
 
 
 # ---------------------------------------------------------------- bad inputs
-BAD = [
-    (dict(n_uavs=0), "n_uavs"),
-    (dict(n_uavs=-3), "n_uavs"),
-    (dict(n_uavs=60, spawn_reference_uavs=60), "n_uavs"),  # 60 UAVs 1 m apart in a 3 m disc: refused, not hung
-    (dict(fov=0.0), "fov"),
-    (dict(fov=-1.0), "fov"),
-    (dict(fov=2 * math.pi + 0.01), "fov"),
-    (dict(fov=float("nan")), "fov"),
-    (dict(dt=0.0), "dt"),
-    (dict(dt=-0.2), "dt"),
-    (dict(dt=float("inf")), "dt"),
-    (dict(tau_v=0.0), "tau_v"),
-    (dict(tau_v=-1.0), "tau_v"),
-    (dict(v_max=0.0), "v_max"),
-    (dict(camera_range=0.0), "camera_range"),
-    (dict(max_steps=0), "max_steps"),
-    (dict(n_scan=37), "n_scan"),
-    (dict(collision_reward_source="lidar"), "collision_reward_source"),
-    (dict(action_mode="torque"), "action_mode"),
-    (dict(circles=[[40.0, 40.0, 6.0], [45.0, 40.0, 2.0]]), "circles"),          # circle-circle overlap
-    (dict(circles=[[14.0, 40.0, 2.0]]), "circles"),                            # circle inside rect x in [7, 13] +2
-    (dict(rectangles=[[10.0, 40.0, 6.0, 16.0], [14.0, 40.0, 4.0, 4.0]]), "rectangles"),  # rect-rect overlap
-    (dict(circles=[[40.0, 40.0, -1.0]]), "circles"),
-    (dict(rectangles=[[10.0, 40.0, 0.0, 16.0]]), "rectangles"),
-    (dict(safe_distance=-1.0), "safe_distance"),
-    (dict(n_moving=-1), "n_moving"),
-    (dict(n_moving=1, moving_box=[70.0, 10.0]), "moving_box"),
-]
 
 
 @pytest.mark.parametrize("overrides, field", BAD, ids=[f"{f}-{i}" for i, (_, f) in enumerate(BAD)])
 def test_bad_values_raise_naming_the_field(overrides, field):
-    if field != "n_uavs":  # spawn feasibility is the world's check, made by every env
+    # FlockingEnv refuses them too (tests/test_env.py); spawn feasibility (n_uavs) is the world's check.
+    if field != "n_uavs":
         with pytest.raises(ConfigError, match=field):
             load_scenario("train", **overrides)
-    # ... and FlockingEnv refuses them at construction (ConfigError is a ValueError).
-    with pytest.raises(ValueError, match=field):
-        FlockingEnv("train", **overrides)
 
 
 def test_circles_that_just_touch_are_allowed():
@@ -135,10 +106,6 @@ def test_unknown_scenario_and_unknown_field():
         load_scenario("train", wind_speed=3.0)
     with pytest.raises(ConfigError, match="wind_speed"):
         load_scenario({**dataclasses.asdict(load_scenario("train")), "wind_speed": 3.0})
-    with pytest.raises(ValueError, match="nowhere"):
-        FlockingEnv("nowhere")
-    with pytest.raises(ValueError, match="wind_speed"):
-        FlockingEnv("train", wind_speed=3.0)
 
 
 def test_wrong_type_names_the_field():
@@ -146,18 +113,15 @@ def test_wrong_type_names_the_field():
         load_scenario("train", n_uavs="five")
 
 
-def test_bad_num_envs():
-    for bad in (0, -1, 1.5, True):
-        with pytest.raises(ValueError, match="num_envs"):
-            FlockingEnv("train", num_envs=bad)
-
-
-@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
-def test_non_finite_actions_raise_at_step(make_env, bad):
-    env = make_env("train", num_envs=2)
-    td = env.reset()
-    action = torch.zeros(2, 5, 2)
-    action[1, 3, 0] = bad
-    td["agents", "action"] = action
-    with pytest.raises(ValueError, match="action"):
-        env.step(td)
+def test_readings_set_the_field_of_view_convention_and_the_spawn():
+    literal = scenario_config("train", reading="literal", policy="policy3_g")
+    fit = scenario_config("train", reading="paper_fit", policy="policy3_g")
+    assert (literal.half_fov, fit.half_fov) == (pytest.approx(math.pi / 4), pytest.approx(math.pi / 2))
+    assert (literal.spawn_separation, fit.spawn_separation) == (1.0, 2.0)  # paper_fit: d_safe
+    # Spawn radius: literal 3 m up to N = 9, then 3 sqrt(N / 9); paper_fit 3 sqrt(N / 5).
+    for n, lit, pf in [(5, 3.0, 3.0), (9, 3.0, 3 * math.sqrt(9 / 5)), (20, 3 * math.sqrt(20 / 9), 6.0),
+                       (3, 3.0, 3 * math.sqrt(3 / 5))]:
+        assert scenario_config("train", reading="literal", n_uavs=n).swarm_spawn_radius == pytest.approx(lit)
+        assert scenario_config("train", reading="paper_fit", n_uavs=n).swarm_spawn_radius == pytest.approx(pf)
+    # Full field of view stays unlimited under both.
+    assert scenario_config("train", reading="paper_fit", policy="policy1").half_fov >= math.pi
