@@ -126,7 +126,7 @@ def test_each_job_is_converted_and_checked_once(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["train.py", "-m", *TINY, "seed=0,1"])
     cli.train_main()
     assert calls == {"train": 2, "scenario": 2}  # two jobs: each config checked once, the world once
-    assert len(list((tmp_path / "runs" / "tiny").glob("*/policy3_g/seed*"))) == 2
+    assert len(list((tmp_path / "runs" / "multirun").glob("*/*/tiny/*/policy3_g/seed*"))) == 2  # the sweep's folder
 
 
 def test_tensorboard_logs_the_hyperparameters(tmp_path):
