@@ -616,3 +616,18 @@ def test_readme_says_which_benchmarl_fits():
     line = next(line for line in readme_lines() if "BenchMARL" in line)
     text = README.read_text()
     assert f"torchrl {torchrl.__version__}" in text and "BenchMARL 1.5.2" in text and "torchrl<0.12" in text, line
+
+
+@pytest.mark.slow
+def test_train_from_python_prints_no_ansi_coloured_torchrl_line(tmp_path):
+    code = textwrap.dedent(f"""
+        from flock_torchrl import make_train_config, train
+        cfg = make_train_config("policy3_g", "tiny", ["experiment.max_frames=32", "experiment.eval_every_frames=0",
+                                "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false"])
+        print("updates", train(cfg, run_dir={str(tmp_path / 'run')!r}).updates)
+        """)
+    env = {k: v for k, v in os.environ.items() if k != "RL_LOGGING_LEVEL"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                          env={**env, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "updates" in proc.stdout and "\x1b[" not in proc.stdout + proc.stderr, proc.stdout[-2000:]
