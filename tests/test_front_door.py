@@ -615,7 +615,7 @@ def test_readme_says_which_benchmarl_fits():
 
     line = next(line for line in readme_lines() if "BenchMARL" in line)
     text = README.read_text()
-    assert f"torchrl {torchrl.__version__}" in text and "BenchMARL 1.5.2" in text and "torchrl<0.12" in text, line
+    assert f"torchrl {torchrl.__version__}" in text and "BenchMARL 1.5.2" in text and "torchrl>=0.10,<0.12" in text and "SyncDataCollector" in text, line
 
 
 @pytest.mark.slow
