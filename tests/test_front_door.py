@@ -231,11 +231,18 @@ def test_every_readme_command_runs_as_written_in_the_activated_env(tmp_path):
            "OMP_NUM_THREADS": "1"}
     env.pop("PYTHONPATH", None)
     demo = ROOT / "runs" / "demo" / "paper_fit" / "policy3_g" / "seed0" / "last.pt"
+    # A run folder for the `-cd <run> -cn resume` command where this clone has no demo run yet.
+    tiny = tmp_path / "tiny_run"
+    run_script("train.py", "experiment=tiny", "experiment.max_frames=32", "experiment.eval_every_frames=0",
+               "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false", f"hydra.run.dir={tiny}",
+               cwd=tmp_path)
     subprocess.run(README.read_text().split("mkdir -p ~/my_conf", 1)[1].split("\nYAML\n")[0].join(
         ["mkdir -p ~/my_conf", "\nYAML\n"]), shell=True, check=True, env=env, cwd=tmp_path)
     ran = 0
     for command in readme_python_commands():
         args = shlex.split(command.replace("~", str(tmp_path)))
+        if "-cd" in args and not demo.is_file():
+            args[args.index("-cd") + 1] = str(tiny)
         cheap = any(c in command for c in CHEAP) and ("runs/demo" not in command or demo.is_file())
         if not cheap:
             args = [*as_single_run(args), "--cfg", "job"]
@@ -509,7 +516,7 @@ def test_two_sweeps_keep_their_own_multirun_yaml_and_a_job_resumes_from_its_fold
     run_script("train.py", "-m", *tiny, "seed=1", cwd=tmp_path)
     sweeps = sorted((tmp_path / "runs" / "multirun").glob("*/*/multirun.yaml"))
     assert len(sweeps) == 2 and "seed=0" in sweeps[0].read_text() and "seed=1" in sweeps[1].read_text()
-    (job,) = sweeps[0].parent.glob("tiny/*/policy3_g/seed0")
+    (job,) = sweeps[0].parent.glob("tiny/*/policy3_g/seed0*")
     proc = run_script("train.py", "-cd", str(job), "-cn", "resume", cwd=tmp_path)
     assert "checkpoint:" in proc.stdout and str(job) in proc.stdout
 
@@ -552,7 +559,7 @@ def test_reproduce_of_some_rows_never_replaces_the_full_table(tmp_path):
     full = tmp_path / "outputs" / "reproduce" / "paper_fit"
     before = (full / "table5.csv").read_bytes()
     proc = run_script("reproduce.py", "table=5", "episodes=2", "episodes_csv=false",
-                      "contenders=[examples/goal_separation.py:make]", cwd=tmp_path)
+                      "contenders=[flock_torchrl.examples.goal_separation.make]", cwd=tmp_path)
     assert (full / "table5.csv").read_bytes() == before
     (mine,) = [p for p in full.iterdir() if p.is_dir()]
     assert mine.name.startswith("contenders-") and (mine / "table5.csv").is_file()
