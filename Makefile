@@ -11,7 +11,7 @@ READING ?=
 R_ARG   := $(if $(READING),reading=$(READING),)
 EPISODES ?= 500
 
-.PHONY: install test test-all demo train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
+.PHONY: install test test-all demo readme-demo docs train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
         reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-paper-recipe \
         publish-scaling publish-claims tune-baselines \
         benchmark scaling clean
@@ -35,6 +35,23 @@ test-all: $(STAMP)
 # number of frames, then evaluate it. Re-running it changes nothing (resume=auto).
 demo: $(STAMP)
 	$(PYTHON) scripts/train.py experiment=demo resume=auto $(R_ARG)
+
+# README's demo lines, written by the demo itself: train it from nothing in outputs/readme_demo/
+# (what a fresh clone's `make demo` does), keep its checkpoint and evaluation lines with this
+# machine's name in docs/demo.md, and splice them into README.md.
+DEMO_DIR := outputs/readme_demo
+readme-demo: $(STAMP)
+	rm -rf $(DEMO_DIR) && mkdir -p $(DEMO_DIR)
+	$(PYTHON) scripts/train.py experiment=demo progress=false hydra.run.dir=$(DEMO_DIR)/run > $(DEMO_DIR)/demo.log \
+		|| { cat $(DEMO_DIR)/demo.log; exit 1; }
+	cat $(DEMO_DIR)/demo.log
+	$(PYTHON) -m flock_torchrl.report.splice --demo $(DEMO_DIR)/demo.log $(DEMO_DIR)/run docs/demo.md
+	$(PYTHON) -m flock_torchrl.report.splice README.md
+
+# The documents' copies of results/ (docs/results.md's spliced blocks), refreshed from results/;
+# the publish targets run it last.
+docs: $(STAMP)
+	$(PYTHON) -m flock_torchrl.report.splice docs/results.md README.md
 
 train: $(STAMP)
 	$(PYTHON) scripts/train.py $(R_ARG) $(ARGS)
@@ -97,7 +114,7 @@ train-fast-populations: $(STAMP)
 	printf '%s\n' $(FAST_POPULATIONS) | xargs -P 2 -I{} sh -c 'OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py \
 		experiment=fast policy={} seed=0 population=$(POPULATION) progress=false resume=auto $(R_ARG)'
 
-# One Policy3-G trained on 5, 9 and 20 UAVs at once (experiment=mixed), three seeds, two at a time.
+# One Policy3-G trained on 5, 20 and 50 UAVs at once (experiment=mixed), three seeds, two at a time.
 train-mixed: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=mixed policy=policy3_g \
 		progress=false resume=auto seed=$(SEEDS) $(R_ARG)
@@ -140,6 +157,7 @@ publish: $(STAMP)
 			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
 	done
 	$(MAKE) --no-print-directory publish-claims
+	$(MAKE) --no-print-directory docs
 
 # The paper's claims over the seeds of each published Table III (docs/specification.md section 10):
 # results/<reading>/table3[_paper_recipe]_claims.md, from the *_seeds.csv tables publish writes.
@@ -158,6 +176,7 @@ publish-paper-recipe: $(STAMP)
 		hydra.run.dir=results/paper_fit
 	$(PYTHON) scripts/figures.py reading=paper_fit figs=[4] hydra.run.dir=figures/paper_fit
 	$(MAKE) --no-print-directory publish-claims
+	$(MAKE) --no-print-directory docs
 
 publish-scaling: $(STAMP)
 	for r in literal paper_fit; do \
@@ -165,6 +184,7 @@ publish-scaling: $(STAMP)
 		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r \
 			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
 	done
+	$(MAKE) --no-print-directory docs
 
 tune-baselines: $(STAMP)
 	$(PYTHON) scripts/tune_baselines.py $(R_ARG)

@@ -118,25 +118,36 @@ def _evaluate_handles(cfg: EvaluateConfig) -> list:
 
 
 def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
+    from .run.rollout import try_contender
     from .world.spawn import check_spawn_feasible
 
     check_spawn_feasible(cfg.scenario)
-    _evaluate_handles(cfg)
+    handles = _evaluate_handles(cfg)
+    if cfg.contender is not None:  # tried on a small batch now: a bad one is one line before any episode
+        try_contender(handles[0], cfg.scenario, None, cfg.device, key="contender")
 
 
 def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
+    from .policies.registry import world_label
     from .run.results import EvaluationResult, write_result
     from .run.rollout import evaluate_handle
 
     _set_threads(cfg.threads)
     results = []
-    for handle in _evaluate_handles(cfg):
-        results.append(evaluate_handle(handle, cfg.scenario, None, cfg.episodes, cfg.seed, cfg.device))
-        _say(f"{results[-1]} [{handle.origin}]")
+    handles = _evaluate_handles(cfg)
+    for i, handle in enumerate(handles, 1):
+        _say(f"[{i}/{len(handles)}] {handle.name} ({handle.origin}): {cfg.episodes} episodes on {cfg.scenario.name} ...")
+        results.append(evaluate_handle(handle, cfg.scenario, None, cfg.episodes, cfg.seed, cfg.device,
+                                       contender_key="contender", log=_say))
+        world = f"; world: {world_label(handle.scenario)}" if handle.kind == "contender" else ""
+        _say(f"{results[-1]} [{handle.origin}{world}]")
     result = EvaluationResult.pooled(results)
     if len(results) > 1:
         _say(f"pooled over {len(results)} checkpoints: {result}")
-    paths = write_result(result, out, dataclasses.asdict(cfg))
+    record = dataclasses.asdict(cfg)
+    if cfg.contender is not None:  # the world it flew in, named in summary.json too
+        record["contender_world"] = {**handles[0].scenario, "label": world_label(handles[0].scenario)}
+    paths = write_result(result, out, record)
     _say("wrote " + " and ".join(str(p) for p in paths))
     return result.rate("success").rate
 
@@ -320,6 +331,7 @@ class PreRunCheck(Callback):
 
     def _check_sweep(self, config: DictConfig) -> None:
         _guard(lambda: _check_launcher(config))
+        _guard(lambda: _sweep_direction(config), config)
         jobs = sweep_jobs(config)
         if jobs is None:  # not a list of values (an Optuna interval ...): each job checks itself
             return
@@ -363,8 +375,11 @@ _LAUNCHER_EXTRAS = {"hydra_plugins.hydra_submitit_launcher": "slurm", "hydra_plu
 
 
 def _check_launcher(config: DictConfig) -> None:
-    """A launcher or sweeper whose plugin is not installed: say which extra installs it."""
+    """A launcher or sweeper that cannot start: its plugin not installed (say which extra
+    installs it), or Slurm's launcher where no ``srun`` is on the PATH (submitit would raise
+    only after Hydra wrote the sweep's ``multirun.yaml``)."""
     import importlib.util
+    import shutil
 
     for node in ("launcher", "sweeper"):
         target = str(config.hydra[node].get("_target_", ""))
@@ -373,6 +388,46 @@ def _check_launcher(config: DictConfig) -> None:
             extra = _LAUNCHER_EXTRAS.get(module)
             hint = f"pip install 'flock_torchrl[{extra}]'" if extra else f"pip install {module.split('.')[1]}"
             raise AppError(f"hydra/{node}: the plugin {module} is not installed ({hint})")
+    launcher = str(config.hydra.launcher.get("_target_", ""))
+    if launcher.endswith(".SlurmLauncher") and shutil.which("srun") is None:
+        raise AppError("hydra/launcher=slurm: this machine has no Slurm (no srun on the PATH); run the sweep on a "
+                       "Slurm login node, or locally with hydra/launcher=local")
+
+
+# What each train objective asks of a sweeper (every one is a rate or a return: larger is better).
+OBJECTIVE_DIRECTIONS = {"success_rate": "maximize", "safe_success_rate": "maximize", "return": "maximize"}
+
+
+def _direction_names(value: Any) -> list[str]:
+    """``maximize`` / ``Direction.maximize`` / a list of them -> their names."""
+    values = list(value) if isinstance(value, (list, tuple)) or OmegaConf.is_list(value) else [value]
+    return [str(getattr(v, "name", v)).split(".")[-1].lower() for v in values]
+
+
+def _sweep_direction(config: DictConfig) -> None:
+    """Optuna's ``direction`` follows the train app's ``objective`` (the plugin's default,
+    ``minimize``, would minimise success): set from the objective unless the command line sets
+    it; one set there that contradicts the objective is a config error. Runs before Hydra
+    instantiates the sweeper (``on_multirun_start``)."""
+    from omegaconf import read_write
+
+    sweeper = config.hydra.sweeper
+    if not str(sweeper.get("_target_", "")).endswith("OptunaSweeper") or "objective" not in config:
+        return
+    want = OBJECTIVE_DIRECTIONS.get(str(config.objective))
+    if want is None:
+        return
+    given = [str(o) for o in config.hydra.overrides.hydra
+             if str(o).lstrip("+~").split("=")[0] == "hydra.sweeper.direction"]
+    if given:
+        wrong = [d for d in _direction_names(sweeper.direction) if d != want]
+        if wrong:
+            raise ConfigError("hydra.sweeper.direction", f"{given[-1]} contradicts objective={config.objective}, "
+                                                         f"which is to {want}; pass hydra.sweeper.direction={want} "
+                                                         "or leave it out (it follows the objective)")
+        return
+    with read_write(sweeper):
+        sweeper.direction = want
 
 
 # ---------------------------------------------------------------------------- the mains

@@ -94,6 +94,21 @@ def run_name(base: Any, overrides: Any = "") -> str:
     return safe_name(str(base) + (f"__{overrides}" if overrides else ""))
 
 
+def selection_dir(overrides: Any = "") -> str:
+    """``""`` for a table of the whole selection, else ``/<selection>``: the reproduce app's
+    subfolder for a table of some rows, contenders or other checkpoints (Hydra's
+    ``override_dirname`` of those keys), so it never replaces another selection's table. A
+    name over 120 characters keeps its start and a digest of the whole."""
+    import hashlib
+
+    name = safe_name(str(overrides or ""))
+    if not name:
+        return ""
+    if len(name) > 120:
+        name = f"{name[:100]}__{hashlib.sha256(name.encode()).hexdigest()[:12]}"
+    return "/" + name
+
+
 def _register_resolvers() -> None:
     # ``${pi:0.5}`` = 0.5 pi: angles written as the paper writes them.
     if not OmegaConf.has_resolver("pi"):
@@ -102,6 +117,11 @@ def _register_resolvers() -> None:
         OmegaConf.register_new_resolver("flock.run_name", run_name)
     if not OmegaConf.has_resolver("flock.shipped_checkpoints"):
         OmegaConf.register_new_resolver("flock.shipped_checkpoints", lambda: str(shipped_checkpoints_dir()))
+    if not OmegaConf.has_resolver("flock.evaluated"):
+        OmegaConf.register_new_resolver("flock.evaluated", lambda policy, contender=None: evaluated_name(policy,
+                                                                                                       contender))
+    if not OmegaConf.has_resolver("flock.selection"):
+        OmegaConf.register_new_resolver("flock.selection", selection_dir)
     if not OmegaConf.has_resolver("flock.safe_name"):
         OmegaConf.register_new_resolver("flock.safe_name", safe_name)
     # ``${flock.concat:[a,b],${some_list}}``: lists joined (one list written once, used twice).
@@ -827,6 +847,37 @@ class EvaluateConfig(WorldApp):
         return self._mark_checked()
 
 
+def is_file_target(text: str) -> bool:
+    """``path/to/file.py:function``: a contender's factory given as a file and a function."""
+    return bool(re.fullmatch(r".+\.py:[A-Za-z_][A-Za-z0-9_]*", text))
+
+
+def contender_name(spec: Any) -> str:
+    """A contender's row name: a mapping's ``name``, else the function's, or its module's (file's)
+    for ``make`` / ``build`` / ``create`` / ``factory``; a checkpoint's file stem."""
+    if isinstance(spec, Mapping):
+        if spec.get("name"):
+            return str(spec["name"])
+        spec = spec.get("_target_", "")
+    target = str(spec)
+    if target.endswith(".pt"):
+        return Path(target).stem
+    where, _, function = target.rpartition(":" if is_file_target(target) else ".")
+    if function not in ("make", "build", "create", "factory"):
+        return function
+    return Path(where).stem if is_file_target(target) else where.rpartition(".")[2] or function
+
+
+def evaluated_name(policy_id: Any, contender: Any = None) -> str:
+    """The evaluate app's folder for what it evaluates: the policy's id, or
+    ``contender-<name>`` when a contender flies (``${flock.evaluated:...}`` in conf/evaluate.yaml)."""
+    if contender is None or contender == "":
+        return str(policy_id)
+    if isinstance(contender, DictConfig):
+        contender = OmegaConf.to_container(contender, resolve=True)
+    return "contender-" + safe_name(contender_name(contender))
+
+
 def _check_contender(key: str, spec: Any) -> None:
     """A contender's shape (a string, or a mapping with a string ``_target_``); whether it
     imports or loads is the registry's check, made before the first episode."""
@@ -1150,5 +1201,6 @@ __all__ = [
     "algo_config", "available", "check_device", "check_seed", "check_tolerance", "compose", "compose_world",
     "config_dir",
     "default_checkpoints_dir", "saved_scenario", "shipped_checkpoints_dir",
-    "config_error", "flatten", "plain", "run_name", "safe_name", "scenario_config",
+    "config_error", "contender_name", "evaluated_name", "flatten", "is_file_target", "plain", "run_name",
+    "safe_name", "scenario_config", "selection_dir",
 ]

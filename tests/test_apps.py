@@ -33,8 +33,9 @@ run = run_script
 def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     # Observation 1: jobs 2-4 "resumed" job 1's run and rewrote its config. Now each job has a
     # folder named after its overrides, holding the config it trained with.
+    # hydra.sweep.dir=runs: the same sweep folder both times (by default each sweep gets its own, issue 31).
     run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
-        cwd=tmp_path)
+        "hydra.sweep.dir=runs", cwd=tmp_path)
     runs = sorted((tmp_path / "runs" / "tiny" / default_reading() / "policy3_g").iterdir())
     # key-value pairs joined by "__": a folder name is a valid Hydra value as it is (no "=" or ",").
     assert [r.name for r in runs] == [f"seed6__algo.lr_actor-{lr}__scenario.max_steps-40__scenario.tau_v-{tau}"
@@ -48,7 +49,7 @@ def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     # The same sweep again resumes each job's own finished run: nothing changes.
     before = {f: (f / "last.pt").read_bytes() for f in runs}
     run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
-        cwd=tmp_path)
+        "hydra.sweep.dir=runs", cwd=tmp_path)
     assert all((f / "last.pt").read_bytes() == data for f, data in before.items())
 
 

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ..config import POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, compose_world, default_checkpoints_dir
+from ..config import (POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, compose_world, contender_name,
+                      default_checkpoints_dir, is_file_target)
 from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, resolve_path
 
 Module = Callable[[Any], Any]
@@ -131,7 +132,10 @@ def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") ->
     (``"examples/goal_separation.py:make"``), or as a mapping for Hydra's ``instantiate``
     (``_target_`` — either form — plus its keyword arguments, and optionally ``name``,
     ``scenario`` — the policy scenario fields it needs, e.g. ``{instinct: true}`` — and
-    ``extras``, the env keys it reads). Errors name ``key``, the setting that gave ``spec``."""
+    ``extras``, the env keys it reads). A factory may also carry those fields as its
+    ``scenario`` attribute (the mapping's win). The world it flies in is
+    :func:`contender_world` of them; a checkpoint flies in the world it was trained in.
+    Errors name ``key``, the setting that gave ``spec``."""
     from hydra.utils import instantiate
     from omegaconf import DictConfig, OmegaConf
 
@@ -149,28 +153,74 @@ def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") ->
     del options["_target_"]
     name = str(options.pop("name", _default_name(target)))
     scenario = dict(options.pop("scenario", {}) or {})
+    declared = getattr(factory, "scenario", None)
+    if declared is not None and not isinstance(declared, Mapping):
+        raise ConfigError(key, f"{name}: the factory's scenario attribute must be a mapping of "
+                               f"{', '.join(POLICY_SCENARIO_FIELDS)}; got {type(declared).__name__}")
+    scenario = {**dict(declared or {}), **scenario}
     unknown = sorted(set(scenario) - set(POLICY_SCENARIO_FIELDS))
     if unknown:
-        raise ConfigError(key, f"{name}: scenario may set only {', '.join(POLICY_SCENARIO_FIELDS)}; "
-                               f"got {unknown}")
+        raise ConfigError(key, f"{name}: scenario may set only {', '.join(POLICY_SCENARIO_FIELDS)}; got {unknown}")
     extras = tuple(options.pop("extras", ()) or ())
     # keyword arguments as given; a nested mapping with its own _target_ is built by Hydra
     kwargs = {k: instantiate(v) if isinstance(v, Mapping) and "_target_" in v else v for k, v in options.items()}
-    return PolicyHandle(id="contender", name=name, kind="contender", reading=None, scenario=scenario, extras=extras,
-                        origin=target, build_for=lambda env: factory(env=env, **kwargs))
+
+    def build(env: Any) -> Module:
+        try:
+            module = factory(env=env, **kwargs)
+        except Exception as exc:
+            raise ConfigError(key, f"{name}: its factory {target} raised {type(exc).__name__}: {exc}") from None
+        if not callable(module) or isinstance(module, (str, bytes)):
+            raise ConfigError(key, f"{name}: its factory {target} returned {describe(module)}, not a TensorDict "
+                                   "module writing ('agents', 'action')")
+        return module
+
+    return PolicyHandle(id="contender", name=name, kind="contender", reading=None,
+                        scenario=contender_world(scenario), extras=extras, origin=target, build_for=build)
+
+
+def contender_world(declared: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The world a contender flies in, the same through every door (``evaluate contender=``,
+    ``reproduce contenders=``): every policy scenario field (``fov``, ``instinct``,
+    ``tangential``, ``collision_reward_source``, ``action_mode``) at the scenarios' own value
+    (``conf/scenario/train.yaml``: the field of view 0.5 pi, the instinct off), but those the
+    contender declares."""
+    base = compose_world("train").scenario
+    return {**{k: base[k] for k in POLICY_SCENARIO_FIELDS}, **dict(declared or {})}
+
+
+def world_label(fields: Mapping[str, Any]) -> str:
+    """``fov 0.50 pi, instinct off``: a policy world in words (the fields that name it)."""
+    import math
+
+    parts = []
+    if "fov" in fields:
+        parts.append(f"fov {float(fields['fov']) / math.pi:.2f} pi")
+    if "instinct" in fields:
+        parts.append("instinct " + ("on" + ("" if fields.get("tangential", True) else ", no tangential term")
+                                    if fields["instinct"] else "off"))
+    for key, usual in (("collision_reward_source", "scan"), ("action_mode", "policy")):
+        if key in fields and fields[key] != usual:
+            parts.append(f"{key} {fields[key]}")
+    return ", ".join(parts) or "the scenario's own"
+
+
+def describe(value: Any) -> str:
+    """What a contender returned, in a few words: ``None``, ``a str ('abc')``, ``a Tensor``."""
+    if value is None:
+        return "None"
+    text = repr(value)
+    text = text if len(text) <= 40 else text[:37] + "..."
+    return f"a {type(value).__name__} ({text})" if isinstance(value, (str, bytes, int, float)) else \
+        f"a {type(value).__name__}"
 
 
 def _default_name(target: str) -> str:
-    """A row's name when none is given: the function's, or its module's (file's) for ``make``."""
-    where, _, function = target.rpartition(":" if _is_file_target(target) else ".")
-    if function not in ("make", "build", "create", "factory"):
-        return function
-    return Path(where).stem if _is_file_target(target) else where.rpartition(".")[2] or function
+    return contender_name(target)
 
 
 def _is_file_target(text: str) -> bool:
-    """``path/to/file.py:function``."""
-    return bool(re.fullmatch(r".+\.py:[A-Za-z_][A-Za-z0-9_]*", text))
+    return is_file_target(text)
 
 
 def _factory(target: str, key: str) -> Callable[..., Any]:
@@ -274,5 +324,5 @@ def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
     return handle.build(env)
 
 
-__all__ = ["PolicyHandle", "checkpoint_handle", "contender_handle", "make_policy", "module_handle", "policy_config_of",
+__all__ = ["PolicyHandle", "checkpoint_handle", "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
            "policy_id", "resolve", "rule_handle", "shipped_checkpoints"]

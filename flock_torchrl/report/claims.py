@@ -56,8 +56,11 @@ class Fidelity:
         if not self.terms:
             return "fidelity score: not available (Tables III and IV not evaluated)"
         parts = ", ".join(f"Table {ROMAN[t]} alone {v:.3f}" for t, v in self.parts.items())
-        state = "" if self.complete else f", INCOMPLETE: {self.terms} of {self.expected} terms"
-        return f"fidelity score {self.score:.3f} (lower is closer to the paper; {parts}{state})"
+        if not self.complete:  # coverage first: a partial mean must never read like the reading's score
+            return (f"INCOMPLETE, {self.terms} of {self.expected} terms: partial fidelity {self.score:.3f} over "
+                    f"these rows only ({parts}), not the reading's fidelity score, which needs all of Tables III "
+                    "and IV")
+        return f"fidelity score {self.score:.3f} (lower is closer to the paper; {parts})"
 
     def metric_line(self) -> str:
         """The mean term per metric, largest first: where the distance to the paper lies."""

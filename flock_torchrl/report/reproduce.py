@@ -24,9 +24,10 @@ from typing import Any, Callable, Mapping, Sequence
 from ..config import EVAL_SEED, ConfigError, check_tolerance
 from ..io import write_csv
 from ..policies.checkpoint import CheckpointError, load_checkpoint
-from ..policies.registry import PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints
+from ..policies.registry import (PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints,
+                                 world_label)
 from ..run.results import EvaluationResult
-from ..run.rollout import evaluate_handle
+from ..run.rollout import evaluate_handle, try_contender
 from .compare import read_table, write_comparison
 from .markdown import render_tables
 from .reference import (KEY_COLUMNS, PAPER_RECIPE_ROW, TABLE_NUMBERS, TableEntry, comparison_row, comparison_rows,
@@ -65,7 +66,8 @@ def plan(table: int, reading: str, checkpoints_dir: str | Path = "checkpoints", 
          only: Sequence[str] | None = None, recipe: str = "fast", contenders: Sequence[Any] = (),
          device: str = "cpu", policies: Mapping[str, Any] | None = None) -> tuple[list[Row], dict[tuple, str]]:
     """The rows to evaluate, every checkpoint among them opened and digest-checked now (before
-    the first episode), and the notes of the rows left out. A learned policy without
+    the first episode), every contender tried on a small batch (:func:`try_contender`: a bad
+    one is one line naming it), and the notes of the rows left out. A learned policy without
     checkpoints is an error under the fast recipe (the shipped set is complete) and a noted,
     empty row under the paper recipe (not every policy was trained with it)."""
     if table not in TABLE_NUMBERS:
@@ -99,9 +101,14 @@ def plan(table: int, reading: str, checkpoints_dir: str | Path = "checkpoints", 
                             [resolve(p, reading, device=device)[0] for p in paper], extra="paper recipe"))
     for spec in contenders:
         handle = contender_handle(spec, device=device)
-        for entry in _contender_entries(table, entries):
+        handle.check_reading(reading)
+        evaluations = _contender_entries(table, entries)
+        # one small batch of its first evaluation, before any row: a bad contender is one line now
+        try_contender(handle, evaluations[0].scenario, reading, device, evaluations[0].env_overrides)
+        extra = f"contender: {handle.origin}; world: {world_label(handle.scenario)}"
+        for entry in evaluations:
             rows.append(Row(TableEntry(_contender_key(table, entry, handle.name), handle.name, entry.scenario,
-                                       dict(entry.env_overrides)), [handle], extra=f"contender: {handle.origin}"))
+                                       dict(entry.env_overrides)), [handle], extra=extra))
     return rows, notes
 
 
@@ -179,14 +186,20 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
     results: dict[tuple[str, ...], EvaluationResult] = {}
     extra_rows, seed_rows, episode_rows = [], [], []
     t0 = time.perf_counter()
-    for i, row in enumerate(rows_to_run, 1):
-        entry = row.entry
+    # contenders first: one that fails mid-episode costs no evaluated paper row; written in plan order
+    order = sorted(range(len(rows_to_run)), key=lambda k: not rows_to_run[k].extra.startswith("contender"))
+    evaluated: dict[int, EvaluationResult] = {}
+    for i, k in enumerate(order, 1):
+        entry = rows_to_run[k].entry
         parts = [evaluate_handle(h, entry.scenario, reading, episodes, seed, device, entry.env_overrides)
-                 for h in row.handles]
-        result = EvaluationResult.pooled(parts)
+                 for h in rows_to_run[k].handles]
+        evaluated[k] = result = EvaluationResult.pooled(parts)
         result.policy = entry.policy
-        label = " / ".join(entry.key)
-        log(f"[table {table}, {i}/{len(rows_to_run)}, {time.perf_counter() - t0:.0f} s] {label}: {result}")
+        log(f"[table {table}, {i}/{len(rows_to_run)}, {time.perf_counter() - t0:.0f} s] {' / '.join(entry.key)}: "
+            f"{result}")
+    for k, row in enumerate(rows_to_run):
+        entry, result = row.entry, evaluated[k]
+        parts = result.parts or [result]
         note = f"{len(parts)} checkpoints pooled ({result.n_episodes} episodes)" if len(parts) > 1 else ""
         if row.extra:
             extra = comparison_row(table, entry.key, result.summary(), None, "; ".join(x for x in (row.extra, note) if x),

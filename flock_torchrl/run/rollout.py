@@ -22,14 +22,14 @@ from __future__ import annotations
 import math
 import os
 import time
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..config import EVAL_SEED, ConfigError, ScenarioConfig, scenario_config
-from ..policies.registry import PolicyHandle, resolve
+from ..policies.registry import PolicyHandle, describe, resolve
 from ..world.env import FlockingEnv
 from ..world.metrics import METRIC_KEYS
 from .results import EvaluationResult
@@ -41,7 +41,8 @@ def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[st
                extras: Sequence[str] = ()) -> FlockingEnv:
     """An env of a scenario in the policy's world: its reading, its scenario fields and the
     env keys it reads. A complete scenario (not a name) is used as given and must agree with
-    the policy's fields; the reading must match a checkpoint's."""
+    the policy's fields (a contender's declared world replaces them: it flies in the same world
+    through every door); the reading must match a checkpoint's."""
     overrides = dict(env_overrides or {})
     extras = tuple(sorted({*handle.extras, *extras}))
     if isinstance(scenario, str):
@@ -49,6 +50,9 @@ def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[st
         policy_id = handle.id if handle.kind in ("learned", "rule") else None
         env = FlockingEnv(scenario, num_envs=num_envs, device=device, seed=seed, reading=reading,
                           policy_id=policy_id, extras=extras, **{**handle.scenario, **overrides})
+    elif handle.kind == "contender":  # it flies in its declared world, whatever policy the config composed
+        cfg = scenario_config(scenario, **{**overrides, **handle.scenario})
+        env = FlockingEnv(cfg, num_envs=num_envs, device=device, seed=seed, extras=extras)
     else:
         cfg = scenario_config(scenario, **overrides)
         for key, value in handle.scenario.items():
@@ -60,14 +64,80 @@ def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[st
     return env
 
 
+ACTION = ("agents", "action")
+
+
+class CheckedContender:
+    """A contender's module, its every output checked before the env reads it: a TensorDict
+    holding a finite float ``("agents", "action")`` of shape ``[*batch, N, 2]``. Anything else
+    is a :class:`ConfigError` under ``key`` naming the contender, what it returned and at
+    which step (the env's own checks would not name it)."""
+
+    def __init__(self, module: Any, name: str, key: str = "contenders") -> None:
+        self.module, self.name, self.key, self.steps = module, name, key, 0
+
+    def fail(self, what: str) -> None:
+        raise ConfigError(self.key, f"{self.name} {what} (at step {self.steps} of its episodes)")
+
+    def __call__(self, td: TensorDict) -> TensorDict:
+        from tensordict import TensorDictBase
+
+        self.steps += 1
+        try:
+            out = self.module(td)
+        except ConfigError:
+            raise
+        except Exception as exc:
+            self.fail(f"raised {type(exc).__name__}: {' '.join(str(exc).split())[:200]}")
+        if not isinstance(out, TensorDictBase):
+            self.fail(f"returned {describe(out)}, not a TensorDict with {ACTION}")
+        action = out.get(ACTION, None)
+        if action is None:
+            keys = sorted(str(k) for k in out.keys(include_nested=True, leaves_only=True))
+            self.fail(f"wrote no {ACTION}; its output holds {', '.join(keys[:8])}")
+        if not isinstance(action, torch.Tensor):
+            self.fail(f"wrote {describe(action)} as {ACTION}, not a tensor")
+        if not action.is_floating_point():
+            self.fail(f"wrote a {action.dtype} action; actions are float in [-1, 1]")
+        n_uavs = td.get(("agents", "observation")).shape[-2]
+        expected = (*td.batch_size, n_uavs, 2)
+        if tuple(action.shape) != expected:
+            self.fail(f"wrote an action of shape {list(action.shape)}; this env needs {list(expected)}")
+        finite = torch.isfinite(action)
+        if not bool(finite.all()):
+            bad = "NaN" if bool(torch.isnan(action).any()) else "inf"
+            self.fail(f"wrote {bad} actions ({int((~finite).sum())} of {action.numel()} values)")
+        return out
+
+
+def try_contender(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
+                  reading: str | None = None, device: str | torch.device = "cpu",
+                  env_overrides: Mapping[str, Any] | None = None, key: str = "contenders",
+                  num_envs: int = 2, steps: int = 3) -> None:
+    """Build a contender for a small batch of its first scenario and step it a few times,
+    before any row is evaluated: a factory that raises or returns no module, an output the env
+    cannot take, the reading of a checkpoint — each is one :class:`ConfigError` naming it."""
+    env = policy_env(handle, scenario, reading, num_envs, EVAL_SEED, device, env_overrides)
+    module = CheckedContender(handle.build(env), handle.name, key)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        for _ in range(steps):
+            td = env.step(module(td))["next"]
+            if bool(td["done"].any()):
+                break
+
+
 def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
-                 label: str = "episodes") -> tuple[TensorDict, int]:
+                 label: str = "episodes", log: Callable[[str], None] | None = None,
+                 every: float = 5.0) -> tuple[TensorDict, int]:
     """Step ``policy`` in ``env`` from one reset until every world has been done once.
 
     Worlds that finish are recorded and dropped: the others continue in
     ``env.subset(running)`` (the same trajectories; S4 noise draws aside). Runs under
     ``ExplorationType.DETERMINISTIC`` and ``torch.no_grad()``. ``progress``: a bar of finished
-    episodes on stderr (``None``: only when stderr is a terminal).
+    episodes on stderr (``None``: only when stderr is a terminal). ``log``: where there is no
+    bar, a line every ``every`` seconds (episodes done, steps, seconds) goes to it, so a long
+    evaluation shows progress in a log file too.
 
     Returns:
         ``(episodes, steps)``: the ``"episode"`` TensorDict ``[B]`` of each world at its first
@@ -78,6 +148,8 @@ def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
     limit = env.cfg.max_steps
     bar = tqdm(total=env.num_envs, desc=label, unit="episode", leave=False, dynamic_ncols=True,
                disable=None if progress is None else not progress)
+    start = last = time.perf_counter()
+    total = env.num_envs
     with bar, torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         records = td["episode"].clone()
@@ -97,6 +169,10 @@ def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
                 if keep.numel():
                     env, td = env.subset(keep), td[keep]
                 rows = rows[keep]
+            if log is not None and bar.disable and time.perf_counter() - last >= every:
+                last = time.perf_counter()
+                log(f"[{label}] {total - rows.numel()}/{total} episodes done, step {steps} of at most {limit}, "
+                    f"{last - start:.0f} s")
     return records.cpu(), steps
 
 
@@ -129,13 +205,19 @@ def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "
 
 def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
                     reading: str | None = None, n_episodes: int = 500, seed: int = EVAL_SEED,
-                    device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None
+                    device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
+                    contender_key: str = "contenders", log: Callable[[str], None] | None = None
                     ) -> EvaluationResult:
     """One policy (one checkpoint, controller or module) on ``n_episodes`` seeded episodes: the
-    protocol's unit that :func:`evaluate`, the apps, the tables and the tuning all run."""
+    protocol's unit that :func:`evaluate`, the apps, the tables and the tuning all run. A
+    contender's every output is checked (:class:`CheckedContender`, errors under
+    ``contender_key``); ``log``: progress lines where no bar shows (:func:`run_episodes`)."""
     start = time.perf_counter()
     env = policy_env(handle, scenario, reading, n_episodes, seed, device, env_overrides)
-    records, steps = run_episodes(env, handle.build(env), label=f"{handle.name} on {env.cfg.name}")
+    module = handle.build(env)
+    if handle.kind == "contender":
+        module = CheckedContender(module, handle.name, contender_key)
+    records, steps = run_episodes(env, module, label=f"{handle.name} on {env.cfg.name}", log=log)
     return EvaluationResult(
         policy=handle.name, scenario=env.cfg.name, reading=env.cfg.reading, seed=seed,
         episodes={k: records[k].clone() for k in METRIC_KEYS}, rollout_steps=steps,
@@ -159,4 +241,4 @@ def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = 
     return rollout.cpu(), env
 
 
-__all__ = ["EVAL_SEED", "evaluate", "evaluate_handle", "policy_env", "rollout_episode", "run_episodes"]
+__all__ = ["CheckedContender", "EVAL_SEED", "evaluate", "try_contender", "evaluate_handle", "policy_env", "rollout_episode", "run_episodes"]

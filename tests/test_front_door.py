@@ -1,0 +1,640 @@
+"""The front door (issue 31, and item 5 of issue 30): README as a new user meets it, the quoted
+output written by the programs, a contender in one world through both doors and refused early,
+the sweeper's direction, sweep folders, launchers, a table of some rows in its own folder,
+progress, the example in the wheel."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import shlex
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from helpers import ROOT, run_script
+
+README = ROOT / "README.md"
+PYTHON_BIN = Path(sys.executable).parent
+
+
+def readme_lines() -> list[str]:
+    return README.read_text().splitlines()
+
+
+def bash_commands(text: str) -> list[str]:
+    """Every command of the ```bash blocks: continuation lines joined, heredoc bodies skipped."""
+    commands, block, heredoc = [], False, None
+    for line in text.splitlines():
+        if line.startswith("```"):
+            block = line.strip() == "```bash"
+            continue
+        if not block:
+            continue
+        if heredoc is not None:
+            heredoc = None if line.strip() == heredoc else heredoc
+            continue
+        if commands and commands[-1].endswith("\\"):
+            commands[-1] = commands[-1][:-1] + " " + line.strip()
+        elif line.strip():
+            commands.append(line.strip())
+        m = re.search(r"<<'?(\w+)'?", line)
+        if m:
+            heredoc = m.group(1)
+    return [re.sub(r"\s+#.*$", "", c) if not c.startswith("#") else "" for c in commands if c]
+
+
+# ---------------------------------------------------------------------------- 1-3: README's shape
+def test_readme_fits_and_shows_the_two_commands_and_the_environment_first():
+    lines = readme_lines()
+    assert len(lines) <= 400, f"README.md is {len(lines)} lines"
+    first = "\n".join(lines[:25])
+    assert "make demo" in first and "make test " in first, "the two commands are not within README's first 25 lines"
+    assert ". .venv/bin/activate" in first and ".venv/bin/python" in first   # how `python ...` finds the package
+    assert "make test-all" in README.read_text()
+    # "Where it stands": a table of at most 10 lines, right after the first screen's paragraph.
+    start = next(i for i, line in enumerate(lines) if line.startswith("**Where it stands**"))
+    table = []
+    for line in lines[start + 1:]:
+        if line.startswith("|"):
+            table.append(line)
+        elif table:
+            break
+    assert 3 <= len(table) <= 10
+
+
+def test_where_it_stands_quotes_results():
+    """Every number of README's 'Where it stands' table is one of results/' own."""
+    lines = readme_lines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("**Where it stands**"))
+    table = "\n".join(line for line in lines[start + 1:start + 12] if line.startswith("|"))
+    published = "\n".join(p.read_text() for p in (ROOT / "results").rglob("*.md"))
+    for score in ("1.414", "1.806"):
+        assert f"fidelity score {score}" in published and score in table
+    paper_fit = (ROOT / "results" / "paper_fit" / "summary.md").read_text()
+    assert "| Policy3-G | 99.8 / 93.8 | 99.5 | 1.585 / 1.627 |" in paper_fit
+    assert "1.585" in table and "99.5 %" in table and "1.627" in table
+    # the fast recipe's success range (learned rows) and the baselines' (rule rows), from the table itself
+    rows = [r for r in paper_fit.split("**Table III, training scenario**")[1].split("\n\n")[1].splitlines()[2:]]
+    success = {r.split("|")[1].strip(): float(r.split("|")[2].split("/")[0]) for r in rows}
+    learned = [v for k, v in success.items() if k.startswith("Policy") and k[6:7].isdigit() and "†" not in k]
+    learned += [success["PolicyD-G"], success["PolicyP-G"]]
+    rules = [success["Policy-MA"], success["Policy-OP"]]
+    assert f"{min(learned):.1f}-{max(learned):.0f} %" in table
+    assert f"{min(rules):.1f}-{max(rules):.1f} %" in table
+
+
+def test_readme_and_docs_links_exist():
+    for doc in (README, *(ROOT / "docs").glob("*.md")):
+        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", doc.read_text()):
+            if target.startswith("http"):
+                continue
+            assert (doc.parent / target).exists(), f"{doc.relative_to(ROOT)} links to {target}, which does not exist"
+
+
+def test_moved_sections_live_in_docs():
+    text = README.read_text()
+    for doc, heading in (("results.md", "## Reading `paper_fit` (the default)"), ("throughput.md", "# Throughput"),
+                         ("decisions.md", "## Decisions, errata and deviations"), ("results.md", "## Limits")):
+        assert heading in (ROOT / "docs" / doc).read_text(), (doc, heading)
+        assert f"docs/{doc}" in text
+    assert "## Throughput" not in text and "### Reading `literal`" not in text
+
+
+# ---------------------------------------------------------------------------- quoted output is spliced
+def test_quoted_blocks_equal_the_files_that_write_them():
+    from flock_torchrl.report.splice import blocks, stale_blocks
+
+    for doc in (README, ROOT / "docs" / "results.md"):
+        assert blocks(doc.read_text()), f"{doc.name} has no spliced block"
+        assert stale_blocks(doc, ROOT) == [], f"{doc.name}: run `make docs` / `make readme-demo`"
+    quoted = [p for p, _, _ in blocks((ROOT / "docs" / "results.md").read_text())]
+    assert {"results/paper_fit/summary.md", "results/literal/summary.md"} <= set(quoted)
+    assert [p for p, _, _ in blocks(README.read_text())] == ["docs/demo.md"]
+
+
+def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_path):
+    from flock_torchrl.config import ConfigError
+    from flock_torchrl.report.splice import splice_file, stale_blocks
+
+    (tmp_path / "pyproject.toml").write_text("")
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "summary.md").write_text("# Summary\n\nfidelity score 1.000\n")
+    doc = tmp_path / "doc.md"
+    doc.write_text("intro\n<!-- splice: results/summary.md -->\nfidelity score 9.999 (stale)\n<!-- end splice -->\nend\n")
+    assert stale_blocks(doc) == ["results/summary.md"]
+    assert splice_file(doc) == ["results/summary.md"]
+    assert doc.read_text() == "intro\n<!-- splice: results/summary.md -->\nfidelity score 1.000\n<!-- end splice -->\nend\n"
+    assert splice_file(doc) == [] and stale_blocks(doc) == []
+    doc.write_text("<!-- splice: results/summary.md -->\nno end\n")
+    with pytest.raises(ConfigError, match="has no '<!-- end splice -->'"):
+        splice_file(doc)
+    assert doc.read_text() == "<!-- splice: results/summary.md -->\nno end\n"   # nothing half-written
+
+
+def test_publish_targets_refresh_the_docs_copies():
+    makefile = (ROOT / "Makefile").read_text()
+    for target in ("publish", "publish-paper-recipe", "publish-scaling"):
+        body = makefile.split(f"\n{target}:", 1)[1].split("\n\n", 1)[0]
+        assert "$(MAKE) --no-print-directory docs" in body, target
+    docs = makefile.split("\ndocs:", 1)[1].split("\n\n", 1)[0]
+    assert "flock_torchrl.report.splice docs/results.md README.md" in docs
+    demo = makefile.split("\nreadme-demo:", 1)[1].split("\n\n", 1)[0]
+    assert "experiment=demo" in demo and "--demo" in demo and "splice README.md" in demo
+    assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile   # item 12
+    assert "about two minutes" not in (ROOT / "conf" / "experiment" / "demo.yaml").read_text()
+
+
+def test_demo_lines_keep_the_checkpoint_and_evaluation_lines(tmp_path):
+    from flock_torchrl.config import ConfigError
+    from flock_torchrl.report.splice import demo_lines, write_demo
+
+    run = tmp_path / "run"
+    log = (f"time split (1 s): env 1 s\ncheckpoint: {run.resolve()}/last.pt (64000 frames, 9 episodes, 7 updates, 3 s)\n"
+           "evaluation (100 episodes, seed 2024, deterministic): success 0.500, d_c 1.000\n")
+    assert demo_lines(log, run) == ["checkpoint: .../last.pt (64000 frames, 9 episodes, 7 updates, 3 s)",
+                                    "evaluation (100 episodes, seed 2024, deterministic): success 0.500, d_c 1.000"]
+    (tmp_path / "log").write_text(log)
+    text = write_demo(tmp_path / "log", run, tmp_path / "demo.md").read_text()
+    assert "Machine: " in text and "torch " + torch.__version__ in text
+    with pytest.raises(ConfigError, match="no evaluation"):
+        demo_lines(log.split("evaluation")[0], run)
+
+
+def demo_quoted() -> tuple[str, list[str]]:
+    text = (ROOT / "docs" / "demo.md").read_text()
+    machine = re.search(r"Machine: (.+), 1 thread\.", text).group(1)
+    return machine, text.split("```\n")[1].strip().splitlines()
+
+
+@pytest.mark.slow
+def test_make_demo_prints_readmes_lines_on_this_machine(tmp_path):
+    """The demo from nothing, as `make demo` runs it: the lines README quotes (the seconds and the
+    run folder aside), on the machine that recorded them."""
+    from flock_torchrl.report.splice import demo_lines, machine
+
+    recorded, quoted = demo_quoted()
+    if recorded != machine():
+        pytest.skip(f"README's demo lines were recorded on {recorded}; this is {machine()}")
+    run = tmp_path / "runs" / "demo"
+    proc = run_script("train.py", "experiment=demo", "resume=auto", "progress=false", f"hydra.run.dir={run}",
+                      cwd=tmp_path, timeout=1200)
+    printed = demo_lines(proc.stdout, run)
+    seconds = re.compile(r", \d+ s\)$")
+    assert [seconds.sub("", line) for line in printed] == [seconds.sub("", line) for line in quoted]
+
+
+# ---------------------------------------------------------------------------- README's commands run
+def test_readme_make_commands_name_real_targets():
+    for command in bash_commands(README.read_text()):
+        if command.startswith("make "):
+            args = [a for a in shlex.split(command)[1:] if "=" not in a]
+            proc = subprocess.run(["make", "-n", *args], cwd=ROOT, capture_output=True, text=True, timeout=60)
+            assert proc.returncode == 0, f"{command}: {proc.stderr}"
+
+
+def as_single_run(args: list[str]) -> list[str]:
+    """A sweep's command as one run of its first job (Hydra's --cfg composes one job only)."""
+    out = []
+    for arg in args:
+        if arg == "-m":
+            continue
+        key, sep, value = arg.partition("=")
+        if sep and not key.startswith("hydra") and "," in value and not value.startswith("["):
+            value = value.split(",")[0]
+        if sep and value.startswith("interval("):
+            value = value[len("interval("):].split(",")[0]
+        out.append(f"{key}{sep}{value}" if sep else arg)
+    return out
+
+
+def readme_python_commands() -> list[str]:
+    return [c for c in bash_commands(README.read_text()) if c.startswith("python scripts/")]
+
+
+# What runs whole in the slow test (seconds each); the others print their composed job.
+CHEAP = ("--cfg job", "episodes=100")
+
+
+@pytest.mark.slow
+def test_every_readme_command_runs_as_written_in_the_activated_env(tmp_path):
+    """`. .venv/bin/activate` puts this interpreter's folder first on PATH: README's cheap
+    commands run as written from a clone; the long ones (training, a sweep) compose their
+    job with --cfg job; the corridor's files go to a temporary home."""
+    env = {**os.environ, "PATH": f"{PYTHON_BIN}{os.pathsep}{os.environ['PATH']}", "HOME": str(tmp_path),
+           "OMP_NUM_THREADS": "1"}
+    env.pop("PYTHONPATH", None)
+    demo = ROOT / "runs" / "demo" / "paper_fit" / "policy3_g" / "seed0" / "last.pt"
+    # A run folder for the `-cd <run> -cn resume` command where this clone has no demo run yet.
+    tiny = tmp_path / "tiny_run"
+    run_script("train.py", "experiment=tiny", "experiment.max_frames=32", "experiment.eval_every_frames=0",
+               "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false", f"hydra.run.dir={tiny}",
+               cwd=tmp_path)
+    subprocess.run(README.read_text().split("mkdir -p ~/my_conf", 1)[1].split("\nYAML\n")[0].join(
+        ["mkdir -p ~/my_conf", "\nYAML\n"]), shell=True, check=True, env=env, cwd=tmp_path)
+    ran = 0
+    for command in readme_python_commands():
+        args = shlex.split(command.replace("~", str(tmp_path)))
+        if "-cd" in args and not demo.is_file():
+            args[args.index("-cd") + 1] = str(tiny)
+        cheap = any(c in command for c in CHEAP) and ("runs/demo" not in command or demo.is_file())
+        if not cheap:
+            args = [*as_single_run(args), "--cfg", "job"]
+        proc = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, f"{command}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+        ran += cheap
+    assert ran >= 4
+
+
+@pytest.mark.slow
+def test_readmes_python_api_block_runs(tmp_path):
+    """The API block as written, but for its two training lines (minutes), which are compiled."""
+    block = README.read_text().split("## Programmatic API", 1)[1].split("```python\n", 1)[1].split("```", 1)[0]
+    skipped = [line for line in block.splitlines() if line.startswith(("result = train(", "mine = load_policy("))]
+    assert len(skipped) == 2
+    compile(block, "README", "exec")
+    code = "\n".join(line for line in block.splitlines() if line not in skipped)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "torch.Size([64, 100, 5, 17])" in proc.stdout and "Policy3-G on s2" in proc.stdout
+    assert "\x1b[" not in proc.stdout + proc.stderr   # no ANSI-coloured log line (item 12)
+
+
+def test_readme_script_commands_compose():
+    """Every `python scripts/<app>.py ...` of README composes with Hydra's compose API (the
+    sweep's first job; --config-dir and -cd commands aside: they need their folder)."""
+    from flock_torchrl.config import compose
+
+    checked = 0
+    for command in readme_python_commands():
+        args = shlex.split(command)
+        if any(a in ("--config-dir", "-cd") for a in args):
+            continue
+        app = Path(args[1]).stem
+        overrides = [a for a in as_single_run(args[2:]) if not a.startswith("--") and a != "job"]
+        compose(app, overrides)
+        checked += 1
+    assert checked >= 8
+
+
+# ---------------------------------------------------------------------------- 4: one world, both doors
+BAD = '''
+import torch
+from tensordict.nn import TensorDictModule
+
+class Act(torch.nn.Module):
+    def __init__(self, what, after=0):
+        super().__init__()
+        self.what, self.after, self.calls = what, after, 0
+
+    def forward(self, obs):
+        self.calls += 1
+        action = torch.zeros(*obs.shape[:-1], 2)
+        if self.calls <= self.after:
+            return action
+        if self.what == "nan":
+            return action * float("nan")
+        if self.what == "inf":
+            return action + float("inf")
+        if self.what == "int64":
+            return action.long()
+        if self.what == "shape":
+            return action[..., :1]
+        return action
+
+def module(what, after=0, key=("agents", "action")):
+    return TensorDictModule(Act(what, after), in_keys=[("agents", "observation")], out_keys=[key])
+
+def raises(env):
+    raise RuntimeError("no weights here")
+
+def none(env):
+    return None
+
+def string(env):
+    return "policy"
+
+def returns_none(env):
+    return lambda td: None
+
+def nan(env):
+    return module("nan")
+
+def inf_later(env):
+    return module("inf", after=30)
+
+def int64(env):
+    return module("int64")
+
+def shape(env):
+    return module("shape")
+
+def out_key(env):
+    return module("ok", key=("agents", "act"))
+
+def fine(env):
+    return module("ok")
+fine.scenario = {"instinct": True}
+'''
+
+EXPECT = {"raises": "raised RuntimeError: no weights here", "none": "returned None", "string": "returned a str",
+          "returns_none": "returned None, not a TensorDict", "nan": "wrote NaN actions", "inf_later": "wrote inf actions",
+          "int64": "wrote a torch.int64 action", "shape": "wrote an action of shape [2, 5, 1]",
+          "out_key": "wrote no ('agents', 'action')"}
+
+
+@pytest.fixture
+def bad_module(tmp_path):
+    path = tmp_path / "bad.py"
+    path.write_text(textwrap.dedent(BAD))
+    return path
+
+
+def test_a_contender_flies_in_one_declared_world_through_both_doors(tmp_path):
+    """The same contender, seed and episodes: `evaluate contender=` and `reproduce contenders=`
+    give the same numbers, in the world it declares (here: the scenario's own, instinct off)."""
+    from flock_torchrl.cli import _run_evaluate
+    from flock_torchrl.config import EvaluateConfig, compose
+    from flock_torchrl.report.reproduce import reproduce
+
+    example = "examples/goal_separation.py:make"
+    cfg = EvaluateConfig.from_config(compose("evaluate", [f"contender={example}", "episodes=6"]))
+    assert cfg.scenario.instinct  # the policy group's default world (Policy3-G's) is composed ...
+    cwd = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        lines: list[str] = []
+        import flock_torchrl.cli as cli
+        say, cli._say = cli._say, lines.append
+        try:
+            _run_evaluate(cfg, tmp_path / "evaluate")
+        finally:
+            cli._say = say
+        table = reproduce(3, "paper_fit", episodes=6, only=["Policy-MA"], contenders=[example],
+                          out_dir=tmp_path / "reproduce", episodes_csv=False, log=lambda m: None)
+    finally:
+        os.chdir(cwd)
+    import json
+    evaluated = json.loads((tmp_path / "evaluate" / "summary.json").read_text())
+    assert evaluated["config"]["contender_world"]["label"] == "fov 0.50 pi, instinct off"   # ... but not flown
+    assert any("world: fov 0.50 pi, instinct off" in line for line in lines)
+    row = next(r for r in table["rows"] if r["policy"] == "goal_separation")
+    assert "world: fov 0.50 pi, instinct off" in row["extra"]
+    summary = evaluated["summary"] if "summary" in evaluated else evaluated
+    for metric in ("success_rate", "d_min_uav", "d_c", "t_goal"):
+        ours, theirs = float(row[metric]), float(summary[metric])
+        assert ours == pytest.approx(theirs, abs=0, rel=0) or (math.isnan(ours) and math.isnan(theirs)), metric
+
+
+def test_a_declared_world_is_the_one_flown(bad_module):
+    from flock_torchrl.policies.registry import contender_handle, world_label
+    from flock_torchrl.run.rollout import policy_env
+
+    handle = contender_handle(f"{bad_module}:fine")      # the factory's scenario attribute: instinct on
+    assert world_label(handle.scenario) == "fov 0.50 pi, instinct on"
+    assert policy_env(handle, "train", "paper_fit", 2).cfg.instinct is True
+    mapping = contender_handle({"_target_": f"{bad_module}:fine", "name": "wide", "scenario": {"fov": 2 * math.pi,
+                                                                                             "instinct": False}})
+    env = policy_env(mapping, "train", "paper_fit", 2)
+    assert env.cfg.instinct is False and env.cfg.fov == pytest.approx(2 * math.pi)
+    assert world_label(mapping.scenario) == "fov 2.00 pi, instinct off"
+
+
+def test_evaluate_names_the_contender_in_its_folder():
+    from flock_torchrl.config import compose, evaluated_name
+
+    cfg = compose("evaluate", ["contender=examples/goal_separation.py:make"], return_hydra_config=True)
+    assert "/contender-goal_separation/" in OmegaConf.to_container(cfg.hydra.run, resolve=False)["dir"].replace(
+        "${flock.evaluated:${policy.id},${contender}}", evaluated_name("policy3_g", cfg.contender))
+    assert evaluated_name("policy3_g", None) == "policy3_g"
+    assert evaluated_name("policy3_g", {"_target_": "a.b.make", "name": "mine"}) == "contender-mine"
+    assert evaluated_name("policy3_g", "flock_torchrl.examples.goal_separation.make") == "contender-goal_separation"
+
+
+# ---------------------------------------------------------------------------- issue 30, item 5: refused early
+@pytest.mark.parametrize("name", sorted(EXPECT))
+def test_a_bad_contender_is_one_line_naming_it_before_any_row(bad_module, tmp_path, name):
+    from flock_torchrl.config import ConfigError
+    from flock_torchrl.report.reproduce import reproduce
+
+    logged: list[str] = []
+    with pytest.raises(ConfigError) as info:
+        reproduce(3, "paper_fit", episodes=40, only=["Policy-MA"], contenders=[f"{bad_module}:{name}"],
+                  out_dir=tmp_path / "out", episodes_csv=False, log=logged.append)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"contenders: {name}") and EXPECT[name] in message, message
+    assert not [line for line in logged if "Policy-MA" in line]    # no paper row evaluated ...
+    assert not (tmp_path / "out").exists()                          # ... and nothing written
+
+
+def test_a_checkpoint_of_the_other_reading_is_refused_before_any_row(tmp_path):
+    from flock_torchrl.config import ConfigError
+    from flock_torchrl.report.reproduce import plan
+
+    literal = ROOT / "checkpoints" / "literal" / "policy3_g" / "seed0.pt"
+    with pytest.raises(ConfigError, match="trained under the reading 'literal'"):
+        plan(3, "paper_fit", ROOT / "checkpoints", only=["Policy-MA"], contenders=[str(literal)])
+
+
+@pytest.mark.slow
+def test_evaluate_refuses_a_bad_contender_in_one_line(bad_module, tmp_path):
+    for name in ("none", "inf_later"):
+        proc = run_script("evaluate.py", f"contender={bad_module}:{name}", "episodes=8", cwd=tmp_path, check=False)
+        err = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(err) == 1 and err[0].startswith(f"error: contender: {name}"), proc.stderr
+        assert EXPECT[name] in err[0]
+    assert not (tmp_path / "outputs").exists() or not list((tmp_path / "outputs").rglob("summary.json"))
+
+
+# ---------------------------------------------------------------------------- 5: Optuna's direction
+def sweep_config(direction_override: str | None = None, objective: str = "success_rate"):
+    overrides = [f"hydra.sweeper.direction={direction_override}"] if direction_override else []
+    return OmegaConf.create({"objective": objective, "hydra": {
+        "sweeper": {"_target_": "hydra_plugins.hydra_optuna_sweeper.optuna_sweeper.OptunaSweeper",
+                    "direction": direction_override or "minimize"},
+        "overrides": {"hydra": overrides, "task": []}}})
+
+
+def test_optunas_direction_follows_the_objective():
+    from flock_torchrl.cli import _sweep_direction
+
+    cfg = sweep_config()
+    OmegaConf.set_readonly(cfg.hydra, True)      # as Hydra hands it over
+    _sweep_direction(cfg)
+    assert cfg.hydra.sweeper.direction == "maximize"
+    cfg = sweep_config("maximize", "safe_success_rate")
+    _sweep_direction(cfg)
+    assert cfg.hydra.sweeper.direction == "maximize"
+
+
+def test_a_direction_against_the_objective_is_a_config_error():
+    from flock_torchrl.cli import _sweep_direction
+    from flock_torchrl.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^hydra.sweeper.direction: hydra.sweeper.direction=minimize contradicts "
+                                          r"objective=success_rate, which is to maximize"):
+        _sweep_direction(sweep_config("minimize"))
+
+
+@pytest.mark.slow
+def test_optuna_minimize_against_the_objective_is_refused_before_anything(tmp_path):
+    import importlib.util
+
+    if importlib.util.find_spec("hydra_plugins.hydra_optuna_sweeper") is None:
+        pytest.skip("the optuna extra is not installed")
+    proc = run_script("train.py", "-m", "hydra/sweeper=optuna", "hydra.sweeper.n_trials=2",
+                      "hydra.sweeper.direction=minimize", "algo.lr_actor=interval(1e-4,1e-3)", "experiment=tiny",
+                      cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "contradicts" in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------- 6: a folder per sweep
+def test_each_sweep_gets_its_own_folder():
+    from flock_torchrl.config import compose
+
+    for app in ("train", "evaluate", "reproduce"):
+        sweep = OmegaConf.to_container(compose(app, return_hydra_config=True).hydra.sweep, resolve=False)
+        assert "${now:%H-%M-%S}" in sweep["dir"] and "multirun" in sweep["dir"], app
+        assert "${now" not in sweep["subdir"], app   # a job's own folder inside it keeps its name
+
+
+@pytest.mark.slow
+def test_two_sweeps_keep_their_own_multirun_yaml_and_a_job_resumes_from_its_folder(tmp_path):
+    tiny = ["experiment=tiny", "scenario.max_steps=20", "experiment.max_frames=32", "experiment.eval_every_frames=0",
+            "experiment.eval_episodes=1", "progress=false"]
+    run_script("train.py", "-m", *tiny, "seed=0", cwd=tmp_path)
+    import time
+    time.sleep(1.1)
+    run_script("train.py", "-m", *tiny, "seed=1", cwd=tmp_path)
+    sweeps = sorted((tmp_path / "runs" / "multirun").glob("*/*/multirun.yaml"))
+    assert len(sweeps) == 2 and "seed=0" in sweeps[0].read_text() and "seed=1" in sweeps[1].read_text()
+    (job,) = sweeps[0].parent.glob("tiny/*/policy3_g/seed0*")
+    proc = run_script("train.py", "-cd", str(job), "-cn", "resume", cwd=tmp_path)
+    assert "checkpoint:" in proc.stdout and str(job) in proc.stdout
+
+
+# ---------------------------------------------------------------------------- 7: a launcher that cannot start
+def test_slurm_without_srun_is_one_line(monkeypatch):
+    import importlib.util
+    import shutil
+
+    from flock_torchrl.cli import AppError, _check_launcher
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: object() if name == "hydra_plugins.hydra_submitit_launcher" else real(name, *a))
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    cfg = OmegaConf.create({"hydra": {"launcher": {"_target_": "hydra_plugins.hydra_submitit_launcher.submitit_launcher"
+                                                               ".SlurmLauncher"},
+                                      "sweeper": {"_target_": "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"}}})
+    with pytest.raises(AppError, match="no Slurm \\(no srun on the PATH\\)"):
+        _check_launcher(cfg)
+    monkeypatch.setattr(shutil, "which", lambda name: "/usr/bin/srun")
+    _check_launcher(cfg)   # on a Slurm machine it starts
+
+
+# ---------------------------------------------------------------------------- 8: a table of some rows
+def test_a_table_of_some_rows_goes_to_its_own_folder():
+    from flock_torchrl.config import selection_dir
+
+    assert selection_dir("") == ""                      # the whole selection: outputs/reproduce/<reading>/
+    only = selection_dir("only-[Policy-MA]")
+    contenders = selection_dir("contenders-[examples/goal_separation.py:make]__only-[Policy-MA]")
+    assert only.startswith("/") and only != contenders and "/" not in only[1:] and "/" not in contenders[1:]
+    long = selection_dir("contenders-[" + "x" * 300 + "]")
+    assert len(long) < 140 and long != selection_dir("contenders-[" + "x" * 299 + "y]")
+
+
+@pytest.mark.slow
+def test_reproduce_of_some_rows_never_replaces_the_full_table(tmp_path):
+    run_script("reproduce.py", "table=5", "episodes=2", "episodes_csv=false", cwd=tmp_path)
+    full = tmp_path / "outputs" / "reproduce" / "paper_fit"
+    before = (full / "table5.csv").read_bytes()
+    proc = run_script("reproduce.py", "table=5", "episodes=2", "episodes_csv=false",
+                      "contenders=[flock_torchrl.examples.goal_separation.make]", cwd=tmp_path)
+    assert (full / "table5.csv").read_bytes() == before
+    (mine,) = [p for p in full.iterdir() if p.is_dir()]
+    assert mine.name.startswith("contenders-") and (mine / "table5.csv").is_file()
+    assert "partial fidelity" not in proc.stdout or "INCOMPLETE" in proc.stdout
+
+
+def test_a_partial_fidelity_line_starts_with_its_coverage():
+    from flock_torchrl.report.claims import Fidelity
+
+    partial = str(Fidelity(2.097, 7, 259, {3: 2.097}))
+    assert partial.startswith("INCOMPLETE, 7 of 259 terms: partial fidelity 2.097")
+    assert "not the reading's fidelity score" in partial and not partial.startswith("fidelity score")
+    whole = str(Fidelity(1.414, 259, 259, {3: 1.438, 4: 1.403}))
+    assert whole.startswith("fidelity score 1.414") and "INCOMPLETE" not in whole
+
+
+# ---------------------------------------------------------------------------- 10: the example in the wheel
+def test_the_example_controller_is_packaged():
+    import tomllib
+
+    from flock_torchrl.policies.registry import contender_handle
+
+    packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    assert "flock_torchrl.examples" in packages
+    assert (ROOT / "flock_torchrl" / "examples" / "goal_separation.py").is_file()
+    packaged = contender_handle("flock_torchrl.examples.goal_separation.make")
+    clone = contender_handle("examples/goal_separation.py:make")
+    assert packaged.name == clone.name == "goal_separation" and packaged.scenario == clone.scenario
+
+
+# ---------------------------------------------------------------------------- 11: progress
+def test_a_long_evaluation_prints_progress_lines():
+    from flock_torchrl.policies.scripted import goal_seeking_policy
+    from flock_torchrl.run.rollout import run_episodes
+    from flock_torchrl.world.env import FlockingEnv
+
+    lines: list[str] = []
+    env = FlockingEnv("s1", num_envs=4, seed=0, reading="paper_fit")
+    records, steps = run_episodes(env, goal_seeking_policy(), progress=False, label="scripted on s1",
+                                  log=lines.append, every=0.0)
+    assert lines and all(line.startswith("[scripted on s1] ") for line in lines)
+    assert re.fullmatch(r"\[scripted on s1\] \d/4 episodes done, step \d+ of at most \d+, \d+ s", lines[-1])
+    quiet: list[str] = []
+    run_episodes(FlockingEnv("s1", num_envs=4, seed=0, reading="paper_fit"), goal_seeking_policy(), progress=False,
+                 log=quiet.append, every=3600.0)
+    assert quiet == []
+
+
+# ---------------------------------------------------------------------------- 12, 13
+def test_readmes_api_block_uses_what_it_loads():
+    block = README.read_text().split("## Programmatic API", 1)[1].split("```", 2)[1]
+    for name in re.findall(r"^(\w+) = ", block, flags=re.M):
+        if name in ("cfg", "result", "mine", "td", "flown"):
+            continue
+        assert len(re.findall(rf"\b{name}\b", block)) >= 2, f"README's API block assigns {name} and never uses it"
+
+
+def test_readme_says_which_benchmarl_fits():
+    import torchrl
+
+    line = next(line for line in readme_lines() if "BenchMARL" in line)
+    text = README.read_text()
+    assert f"torchrl {torchrl.__version__}" in text and "BenchMARL 1.5.2" in text and "torchrl>=0.10,<0.12" in text and "SyncDataCollector" in text, line
+
+
+@pytest.mark.slow
+def test_train_from_python_prints_no_ansi_coloured_torchrl_line(tmp_path):
+    code = textwrap.dedent(f"""
+        from flock_torchrl import make_train_config, train
+        cfg = make_train_config("policy3_g", "tiny", ["experiment.max_frames=32", "experiment.eval_every_frames=0",
+                                "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false"])
+        print("updates", train(cfg, run_dir={str(tmp_path / 'run')!r}).updates)
+        """)
+    env = {k: v for k, v in os.environ.items() if k != "RL_LOGGING_LEVEL"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                          env={**env, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "updates" in proc.stdout and "\x1b[" not in proc.stdout + proc.stderr, proc.stdout[-2000:]
