@@ -40,6 +40,7 @@ from flock_torchrl.policies.learners import SACLearner, compiled
 from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
+from benchmarks.population import population_lines
 
 
 @dataclass
@@ -346,6 +347,8 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     notes: list[str] = []
     text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device), notes=notes))
     text += "\n" + "\n".join(notes)
+    # Populations against solo runs, the whole training loop (benchmarks/population.py).
+    text += "\n" + "\n".join(population_lines(frames=400 if cfg.quick else 3000, print_each=False))
     print(text, flush=True)
     write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
 
