@@ -227,3 +227,45 @@ def test_a_population_trains_ships_and_resumes_bitwise(tmp_path):
         policy = load_policy(tmp_path / "ckpt" / "paper_fit" / "policy3_g" / f"seed{seed}.pt")
         assert policy.flock_meta["seed"] == seed
         assert all(torch.equal(v, a["members"][k]["actor"][n]) for n, v in policy.actor.state_dict().items())
+
+
+@pytest.mark.slow
+def test_a_signalled_population_checkpoints_and_resumes_to_the_uninterrupted_run(tmp_path):
+    """SIGTERM to a real population process: it checkpoints, exits 143, and its resume.yaml
+    continues it to the weights and episode logs of an uninterrupted run."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(root)}
+    args = ["policy=policy3_g", "experiment=tiny", "population=2", *QUICK, "experiment.max_frames=800",
+            "experiment.checkpoint_every_frames=64", "experiment.eval_every_frames=0"]
+    folder = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, str(root / "scripts" / "train.py"), *args, f"hydra.run.dir={folder}"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 180
+    while not (folder / "last.pt").exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() < deadline, "no checkpoint appeared"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 143, err
+    assert "Traceback" not in err
+    stopped = load_checkpoint(folder / "last.pt")["counters"]["frames"]
+    assert stopped < 800, "the signal did not land mid-run"
+    resumed = subprocess.run([sys.executable, str(root / "scripts" / "train.py"), "-cd", str(folder), "-cn", "resume"],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    whole = train(make_train_config("policy3_g", "tiny", args[2:]), tmp_path / "whole")
+    a, b = load_checkpoint(whole.checkpoint), load_checkpoint(folder / "last.pt")
+    assert a["counters"]["frames"] == b["counters"]["frames"] == 800
+    for ma, mb in zip(a["members"], b["members"]):
+        assert all(torch.equal(v, mb["actor"][k]) for k, v in ma["actor"].items())
+    for seed in (0, 1):
+        assert (tmp_path / "whole" / f"seed{seed}" / "episodes.csv").read_text() == \
+            (folder / f"seed{seed}" / "episodes.csv").read_text()
