@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from helpers import script_env
+from helpers import first_fast, script_env
 
 from flock_torchrl import CheckpointError, FlockingEnv
 from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
@@ -52,7 +52,7 @@ def tiny(*overrides: str):
 
 
 # ---------------------------------------------------------------------------- 6: config errors
-@pytest.mark.parametrize("bad, key", [
+@pytest.mark.parametrize("bad, key", first_fast([
     ("seed=-1", "seed: must be an integer >= 0"),
     ("seed=99999999999999999999", "seed: must be an integer >= 0 and <= 4294967295"),
     ("device=gpu0", "device: must be cpu, cuda"),
@@ -61,7 +61,7 @@ def tiny(*overrides: str):
     ("scenario.fov=7", "scenario.fov: must be a positive finite number and <= 6.28319"),
     ("policy=policy_ma", "policy: Policy-MA is rule-based"),
     ("experiment.workers=3", "experiment.workers: 3 must divide num_envs=4"),
-])
+]))
 def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key):
     if bad == "device=cuda" and torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
@@ -71,6 +71,7 @@ def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key)
     assert list(tmp_path.iterdir()) == []  # no run folder, no .hydra, no log
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad, key", [("scenario.n_uavs=abc", "scenario.n_uavs"), ("seed=abc", "seed"),
                                       ("policy=nope", "policy/nope"), ("algo.lr_critc=1", "lr_critc")])
 def test_composition_errors_are_hydras_own_and_leave_nothing(tmp_path, bad, key):
@@ -80,6 +81,7 @@ def test_composition_errors_are_hydras_own_and_leave_nothing(tmp_path, bad, key)
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_sweep_is_checked_whole_before_any_job_runs(tmp_path):
     code, _, err = finish(start("-m", *TINY, "seed=0,1", "algo.lr_actor=0.001,-1", cwd=tmp_path))
     assert code == 2 and "algo.lr_actor" in err and list(tmp_path.iterdir()) == []
@@ -95,6 +97,7 @@ def resume_line(err: str) -> list[str]:
 
 
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.slow
 def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path, signum, status):
     budget = ["experiment.max_frames=3200", "experiment.checkpoint_every_frames=64"]
     folder = tmp_path / "run"
@@ -118,6 +121,7 @@ def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path,
     assert (tmp_path / "whole" / "episodes.csv").read_text() == (folder / "episodes.csv").read_text()
 
 
+@pytest.mark.slow
 def test_a_second_ctrl_c_aborts_at_once():
     from flock_torchrl.run.trainer import Signals, Stopped
 
@@ -133,6 +137,7 @@ def test_a_second_ctrl_c_aborts_at_once():
 
 
 # ---------------------------------------------------------------------------- 3: concurrent runs
+@pytest.mark.slow
 def test_a_second_process_on_the_same_folder_is_refused(tmp_path):
     folder = tmp_path / "run"
     first = start(*TINY, "experiment.max_frames=100000", f"hydra.run.dir={folder}", cwd=tmp_path)
@@ -169,6 +174,7 @@ def test_a_finished_run_without_its_buffer_resumes_to_a_no_op(tmp_path):
     assert (tmp_path / "run" / "last.pt").read_bytes() == before
 
 
+@pytest.mark.slow
 def test_the_demo_twice(tmp_path):
     # Observation 1: `make demo` run twice exited 2 the second time.
     args = ["experiment=demo", "resume=auto", "experiment.max_frames=512", "experiment.init_random_frames=256",
@@ -252,6 +258,7 @@ def test_env_refuses_to_step_a_done_world(env):
 
 
 # ---------------------------------------------------------------------------- 8: logs after kill -9
+@pytest.mark.slow
 def test_logs_after_kill_and_resume_equal_an_uninterrupted_runs(tmp_path):
     budget = ["experiment.max_frames=2400", "experiment.checkpoint_every_frames=160", "logger=csv"]
     folder = tmp_path / "run"

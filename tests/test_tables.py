@@ -165,6 +165,7 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     assert "INCOMPLETE" in (tmp_path / "results" / "fidelity.md").read_text()
 
 
+@pytest.mark.slow
 def test_reproduce_app_checks_every_checkpoint_before_the_first_row(tmp_path):
     # Nothing shipped where checkpoints_dir points: refused at once, naming the setting, nothing written.
     out = tmp_path / "out"
