@@ -94,6 +94,7 @@ def test_optuna_tunes_a_policy_through_the_train_apps_objective(tmp_path):
     assert 0.0 <= result["best_value"] <= 1.0
 
 
+@pytest.mark.slow
 def test_a_launcher_without_its_plugin_says_which_extra(tmp_path):
     if importlib.util.find_spec("hydra_plugins.hydra_submitit_launcher") is not None:
         pytest.skip("the slurm extra is installed")
@@ -133,6 +134,7 @@ def test_each_job_is_converted_and_checked_once(tmp_path, monkeypatch):
     assert len(list((tmp_path / "runs" / "tiny").glob("*/policy3_g/seed*"))) == 2
 
 
+@pytest.mark.slow
 def test_tensorboard_logs_the_hyperparameters(tmp_path):
     if importlib.util.find_spec("tensorboard") is None:
         pytest.skip("tensorboard is the tensorboard extra")

@@ -217,6 +217,7 @@ def test_comparison_by_hand(tmp_path):
     assert "0 of 2 rows within it" in text and "95.0 % / 95.8 % / +0.8 pp" in text and "0.500 / 0.650 / +0.150 ✗" in text
 
 
+@pytest.mark.slow
 def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
     policy = goal_seeking_policy()
     first = reproduce(3, "literal", episodes=3, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "a",
