@@ -1,5 +1,6 @@
 """Runs that survive their users: config errors, signals, concurrent runs, resumes, corrupted
-files, env misuse. Each test is an observation of issue 9 that failed before."""
+files. Each test is an observation of issue 9 that failed before (its env misuse, item 7, is in
+tests/test_env.py)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import torch
 import yaml
 from helpers import first_fast, script_env
 
-from flock_torchrl import CheckpointError, FlockingEnv
+from flock_torchrl import CheckpointError
 from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
 from flock_torchrl.run.trainer import make_train_config, train
 
@@ -220,41 +221,6 @@ def test_corrupted_foreign_and_wrong_kind_checkpoints_say_which(tmp_path):
     save_checkpoint({"x": 1}, tmp_path / "odd.pt", kind="policy")
     with pytest.raises(CheckpointError, match="policy checkpoint without meta, actor"):
         load_checkpoint(tmp_path / "odd.pt")
-
-
-# ---------------------------------------------------------------------------- 7: env misuse
-@pytest.fixture
-def env():
-    env = FlockingEnv("train", num_envs=2, seed=0, max_steps=2)
-    env.reset()
-    return env
-
-
-def test_env_names_a_wrong_action(env):
-    td = env.current()
-    with pytest.raises(ValueError, match=r"\('agents', 'action'\) has shape \[2, 5, 3\], expected \[2, 5, 2\]"):
-        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 3)))
-    td = env.current()
-    with pytest.raises(ValueError, match=r"no \('agents', 'action'\) entry"):
-        env.step(td)
-    with pytest.raises(ValueError, match="dtype torch.int64, expected a floating point"):
-        env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.int64)))
-    # float64 is cast: the env's state and outputs stay float32.
-    out = env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.float64)))["next"]
-    assert out["agents", "observation"].dtype == torch.float32 and env.world["position"].dtype == torch.float32
-
-
-def test_env_refuses_to_step_a_done_world(env):
-    td = env.current().set(("agents", "action"), torch.zeros(2, 5, 2))
-    td = env.step(td)["next"]
-    td = env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))["next"]
-    assert td["done"].all()  # max_steps = 2
-    with pytest.raises(ValueError, match=r"world\(s\) 0, 1 are done; reset them first"):
-        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))
-    # TorchRL's way continues: step_and_maybe_reset resets the done worlds.
-    td = env.rand_action(env.reset())
-    for _ in range(5):
-        _, td = env.step_and_maybe_reset(env.rand_action(td))
 
 
 # ---------------------------------------------------------------------------- 8: logs after kill -9
