@@ -237,3 +237,16 @@ def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
     proc = run_script("reproduce.py", "table=3", "+compare_tolerance.speedy=1", f"hydra.run.dir={out}",
                       cwd=tmp_path, check=False)
     assert proc.returncode == 2 and proc.stderr.startswith("error: compare_tolerance.speedy:") and not out.exists()
+
+
+def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
+    """report/scaling.py (make scaling) in the fast tier: one row per policy and size, the spawn
+    radius by the reading's rule (literal: 3 m up to N = 9, docs/specification.md section 9),
+    dashes for a rule-based policy's training, and the CSV, Markdown and plot written."""
+    from flock_torchrl.report.scaling import scaling
+
+    rows = scaling("policy_ma", "literal", [3], 1, out_dir=tmp_path, log=lambda message: None)
+    assert [(r["policy"], r["trained_sizes"], r["n_uavs"], r["n_episodes"]) for r in rows] == [("Policy-MA", "—", 3, 1)]
+    assert rows[0]["spawn_radius"] == pytest.approx(3.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling.csv", "scaling.md", "scaling.png"]
+    assert "| Policy-MA | — | 3 | 3.00 | " in (tmp_path / "scaling.md").read_text()
