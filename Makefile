@@ -25,9 +25,12 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# The fast default: every test file, leaving out the tests marked slow (process-level signals,
+# the wheel, Optuna, long equivalence runs, trainings of more than a few seconds).
 test: $(STAMP)
 	$(PYTHON) -m pytest -n 2 --dist loadfile -m "not slow"
 
+# Every test, the slow ones included (what CI runs: .ci/run).
 test-all: $(STAMP)
 	$(PYTHON) -m pytest -n 2 --dist loadfile
 

@@ -57,3 +57,13 @@ BAD_SCENARIO_VALUES = [
     (dict(n_moving=1, moving_box=[70.0, 10.0]), "moving_box"),
 ]
 
+
+
+def first_fast(cases) -> list:
+    """``cases`` for ``pytest.mark.parametrize`` with every case but the first marked slow: a family
+    whose every case starts a process or trains keeps one case in ``make test`` and runs whole in
+    ``make test-all``."""
+    import pytest
+
+    return [case if i == 0 else pytest.param(*(case if isinstance(case, tuple) else (case,)), marks=pytest.mark.slow)
+            for i, case in enumerate(cases)]

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import run_script
+from helpers import first_fast, run_script
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.max_frames=48", "experiment.eval_every_frames=0",
@@ -30,6 +30,7 @@ def default_reading() -> str:
 run = run_script
 
 
+@pytest.mark.slow
 def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     # Observation 1: jobs 2-4 "resumed" job 1's run and rewrote its config. Now each job has a
     # folder named after its overrides, holding the config it trained with.
@@ -53,6 +54,7 @@ def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     assert all((f / "last.pt").read_bytes() == data for f, data in before.items())
 
 
+@pytest.mark.slow
 def test_sweep_dir_moves_everything_and_config_is_what_cfg_job_prints(tmp_path):
     # Observation 2: hydra.sweep.dir moved only .hydra/; observation 3: config.yaml and
     # --cfg job showed other values than the run used.
@@ -72,6 +74,7 @@ def test_sweep_dir_moves_everything_and_config_is_what_cfg_job_prints(tmp_path):
     assert "algo.batch_size: 1280" in hparams and "scenario.instinct: True" in hparams
 
 
+@pytest.mark.slow
 def test_apps_write_only_their_output_folders(tmp_path):
     # Observation 2: evaluate.py wrote into the repository and reproduce / figures overwrote the
     # shipped results/ and figures/. Each app now writes under outputs/ of the working folder.
@@ -86,6 +89,7 @@ def test_apps_write_only_their_output_folders(tmp_path):
     assert after == shipped
 
 
+@pytest.mark.slow
 def test_the_wheel_carries_the_configs(tmp_path):
     # Observation 4: `pip install .` gave "unknown scenario 'train'; available: []".
     source = tmp_path / "source"  # built from a copy: the build writes build/ and *.egg-info beside it
@@ -145,8 +149,8 @@ def test_every_package_folder_is_packaged():
     assert found | configs | {"flock_torchrl.checkpoints"} == listed  # checkpoints/: one package, files by glob
 
 
-@pytest.mark.parametrize("script", ["train.py", "evaluate.py", "reproduce.py", "figures.py", "tune_baselines.py",
-                                    "ship.py", "scaling.py"])
+@pytest.mark.parametrize("script", first_fast(["train.py", "evaluate.py", "reproduce.py", "figures.py",
+                                               "tune_baselines.py", "ship.py", "scaling.py"]))
 def test_every_script_is_a_hydra_app(script, tmp_path):
     proc = run(script, "--cfg", "job", cwd=tmp_path)
     assert proc.stdout.strip() and not (tmp_path / "outputs").exists() and not (tmp_path / "runs").exists()

@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 import pytest
+from helpers import first_fast
 import torch
 from tensordict.nn import TensorDictModuleBase
 
@@ -281,7 +282,7 @@ def test_bad_params_fail_naming_the_field():
 # ----------------------------------------------------------------------------- in the env
 
 
-@pytest.mark.parametrize("scenario", SCENARIOS)
+@pytest.mark.parametrize("scenario", first_fast(SCENARIOS))
 def test_rollout_in_every_scenario_has_no_nan(scenario):
     for name in BASELINES:
         env = baseline_env(name, scenario, num_envs=3, seed=7)
@@ -307,3 +308,17 @@ def test_policy_runs_on_the_inputs_device():
     for name in BASELINES:
         td = make_policy(name, env)(env.reset())
         assert td["agents", "action"].device.type == torch.device(device).type
+
+
+def test_tuning_walks_the_grid_with_tied_parameters_and_picks_a_grid_point():
+    """report/tuning.py (make tune-baselines) in the fast tier: Policy-MA's grid is 3 x 3 points,
+    r kept at 1.2 d and r_beta at 1.2 d_beta (docs/baselines.md); a short tuning run scores
+    each point once and chooses one of them."""
+    from flock_torchrl.report.tuning import candidates, tune
+
+    points = list(candidates("policy_ma"))
+    assert len(points) == 9
+    assert points[0] == {"d": 3.0, "d_beta": 2.0, "r": 3.6, "r_beta": 2.4}  # 1.2 * 3.0, 1.2 * 2.0
+    chosen, rows = tune("policy_ma", "literal", episodes=1, seed=0, max_steps=10, log=lambda message: None)
+    assert len(rows) == 9 and all(0.0 <= row["score"] <= 1.0 for row in rows)
+    assert chosen in points  # tied parameters included

@@ -16,6 +16,7 @@ from benchmarks.throughput import BenchmarkConfig, CheckFirst, format_rows, lear
 from flock_torchrl import ConfigError, FlockingEnv
 
 
+@pytest.mark.slow
 def test_the_update_rows_compare_eager_compiled_and_vectorised_kernels():
     rows = learner_rows(batches=((128, "paper"),), updates=2, repeat=1)
     names = [row.what for row in rows]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import ROOT, run_script, script_env
+from helpers import ROOT, first_fast, run_script, script_env
 
 from flock_torchrl import CheckpointError
 from flock_torchrl.policies.checkpoint import load_checkpoint
@@ -60,6 +60,7 @@ def printed_resume(err: str) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- 1: a sweep job resumes by its folder
+@pytest.mark.slow
 def test_a_sweep_job_resumes_by_its_folder_with_the_printed_line(tmp_path):
     budget = ["experiment.max_frames=4000", "experiment.checkpoint_every_frames=64"]
     proc = start("-m", *TINY, *budget, "algo.lr_actor=3e-4", f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=tmp_path)
@@ -80,6 +81,7 @@ def test_a_sweep_job_resumes_by_its_folder_with_the_printed_line(tmp_path):
 
 # ---------------------------------------------------------------------------- 2, 4: signals to the process group
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.slow
 def test_signals_to_the_process_group_with_collector_processes(tmp_path, signum):
     """A terminal's Ctrl-C, Slurm's SIGTERM and a dropped ssh connection reach every process
     of the run: the collector processes ignore them, the main process checkpoints and exits
@@ -102,6 +104,7 @@ def test_signals_to_the_process_group_with_collector_processes(tmp_path, signum)
 
 
 # ---------------------------------------------------------------------------- 3: the end-of-run evaluation
+@pytest.mark.slow
 def test_a_signal_during_the_final_evaluation_keeps_the_run_and_its_evaluation(tmp_path):
     folder = tmp_path / "run"
     args = [*TINY, "experiment.max_frames=96", "experiment.eval_episodes=4000", "scenario.max_steps=300",
@@ -122,6 +125,7 @@ def test_a_signal_during_the_final_evaluation_keeps_the_run_and_its_evaluation(t
     assert load_checkpoint(folder / "last.pt")["evaluations"][-1]["frames"] == 96
 
 
+@pytest.mark.slow
 def test_a_signal_while_starting_is_one_line(tmp_path):
     proc = start(*TINY, cwd=tmp_path)
     time.sleep(0.3)  # Python is still importing torch
@@ -142,11 +146,11 @@ def _malicious(path: Path) -> None:
         pickle.dump({"payload": Payload()}, handle)
 
 
-@pytest.mark.parametrize("make, words", [
+@pytest.mark.parametrize("make, words", first_fast([
     (lambda p: p.write_bytes(b""), "is empty"),
     (lambda p: p.write_text("my notes\n"), "not a readable checkpoint"),
     (_malicious, "holds Python objects a checkpoint never contains"),
-])
+]))
 def test_a_bad_checkpoint_is_one_line_naming_it_and_never_suggests_unsafe_loading(tmp_path, make, words):
     bad = tmp_path / "bad.pt"
     make(bad)
@@ -194,6 +198,7 @@ def test_resume_repairs_torn_log_lines_and_removes_stale_temporaries(tmp_path):
 
 
 # ---------------------------------------------------------------------------- 7, 8: values the run cannot take
+@pytest.mark.slow
 @pytest.mark.parametrize("bad, key", [
     ("seed=1700000000000000000", "seed"),
     ("algo.buffer_size=900000000", "algo.buffer_size"),
@@ -211,6 +216,7 @@ def test_values_the_run_cannot_take_are_refused_before_anything_is_written(tmp_p
 
 
 # ---------------------------------------------------------------------------- 10: late or raw
+@pytest.mark.slow
 def test_a_corrupted_paper_recipe_checkpoint_is_found_before_the_first_row(tmp_path):
     recipe = tmp_path / "recipe" / "policy3_g"
     recipe.mkdir(parents=True)
@@ -231,6 +237,7 @@ def test_a_read_only_run_folder_is_one_line(tmp_path, monkeypatch):
         train(make_train_config("policy3_g", "tiny", [*TINY, "experiment.max_frames=96", "resume=true"]), run)
 
 
+@pytest.mark.slow
 def test_an_int_inside_a_float_list_is_taken(tmp_path):
     proc = run_script("evaluate.py", "policy=policy_ma", "scenario.circles=[[40,40,6]]", "episodes=2", cwd=tmp_path)
     assert "Policy-MA on train" in proc.stdout

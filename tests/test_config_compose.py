@@ -29,8 +29,14 @@ def test_every_policy_has_a_yaml_whose_id_is_its_name():
         assert cfg.policy.id == policy
 
 
-@pytest.mark.parametrize("policy", LEARNED)
-@pytest.mark.parametrize("experiment", ["paper", "fast", "fast_safe", "demo", "tiny"])
+EXPERIMENTS = ["paper", "fast", "fast_safe", "demo", "tiny"]
+# Every pair in make test-all; make test composes each policy once and each experiment twice.
+PAIRS = [pytest.param(policy, experiment, id=f"{experiment}-{policy}",
+                      marks=() if i % len(EXPERIMENTS) == EXPERIMENTS.index(experiment) else pytest.mark.slow)
+         for experiment in EXPERIMENTS for i, policy in enumerate(LEARNED)]
+
+
+@pytest.mark.parametrize("policy, experiment", PAIRS)
 def test_every_learned_policy_and_experiment_compose_and_check(policy, experiment):
     rc = check_train_config(make_train_config(policy, experiment))
     assert rc.policy.id == policy and rc.experiment.name == experiment

@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-from helpers import ROOT, run_script
+from helpers import ROOT, first_fast, run_script
 
 EXAMPLE = f"{ROOT / 'examples' / 'goal_separation.py'}:make"
 CHECKPOINT = ROOT / "checkpoints" / "paper_fit" / "policy3_g" / "seed0.pt"
@@ -20,6 +20,7 @@ def rows_of(path):
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_contenders_are_rows_of_table_3_beside_the_papers_and_outside_its_score(tmp_path):
     base = ["table=3", "episodes=3", "only=[Policy-MA]", "episodes_csv=false"]
     run_script("reproduce.py", *base, f"hydra.run.dir={tmp_path / 'plain'}", cwd=tmp_path)
@@ -38,6 +39,7 @@ def test_contenders_are_rows_of_table_3_beside_the_papers_and_outside_its_score(
     assert "goal_separation" in (tmp_path / "with" / "table3.md").read_text()
 
 
+@pytest.mark.slow
 def test_a_contender_from_an_import_path_with_arguments_is_evaluated_and_in_table_4(tmp_path):
     package = tmp_path / "lab" / "mylab"
     package.mkdir(parents=True)
@@ -58,12 +60,12 @@ def test_a_contender_from_an_import_path_with_arguments_is_evaluated_and_in_tabl
             assert sorted(r.get("scenario") for r in mine) == expect and all(r["extra"] for r in mine), (table, name)
 
 
-@pytest.mark.parametrize("spec, words", [
+@pytest.mark.parametrize("spec, words", first_fast([
     ("examples/nowhere.py:make", "no file"),
     (f"{ROOT / 'examples' / 'goal_separation.py'}:build", "defines no function 'build'"),
     ("mylab_missing.make", "cannot import the factory 'mylab_missing.make'"),
     ("{name: x}", "a mapping with _target_"),
-])
+]))
 def test_a_bad_contender_is_named_before_anything_runs(tmp_path, spec, words):
     proc = run_script("reproduce.py", "table=3", "episodes=2", "only=[Policy-MA]", f"contenders=[{spec}]",
                       f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, check=False)

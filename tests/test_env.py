@@ -434,3 +434,40 @@ def test_non_finite_actions_raise_at_step(make_env, bad):
     td["agents", "action"] = action
     with pytest.raises(ValueError, match="action"):
         env.step(td)
+
+
+# ---------------------------------------------------------------------------- misuse (issue 9, item 7)
+@pytest.fixture
+def short_env():
+    env = FlockingEnv("train", num_envs=2, seed=0, max_steps=2)
+    env.reset()
+    return env
+
+
+def test_env_names_a_wrong_action(short_env):
+    env = short_env
+    td = env.current()
+    with pytest.raises(ValueError, match=r"\('agents', 'action'\) has shape \[2, 5, 3\], expected \[2, 5, 2\]"):
+        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 3)))
+    td = env.current()
+    with pytest.raises(ValueError, match=r"no \('agents', 'action'\) entry"):
+        env.step(td)
+    with pytest.raises(ValueError, match="dtype torch.int64, expected a floating point"):
+        env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.int64)))
+    # float64 is cast: the env's state and outputs stay float32.
+    out = env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.float64)))["next"]
+    assert out["agents", "observation"].dtype == torch.float32 and env.world["position"].dtype == torch.float32
+
+
+def test_env_refuses_to_step_a_done_world(short_env):
+    env = short_env
+    td = env.current().set(("agents", "action"), torch.zeros(2, 5, 2))
+    td = env.step(td)["next"]
+    td = env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))["next"]
+    assert td["done"].all()  # max_steps = 2
+    with pytest.raises(ValueError, match=r"world\(s\) 0, 1 are done; reset them first"):
+        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))
+    # TorchRL's way continues: step_and_maybe_reset resets the done worlds.
+    td = env.rand_action(env.reset())
+    for _ in range(5):
+        _, td = env.step_and_maybe_reset(env.rand_action(td))

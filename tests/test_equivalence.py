@@ -74,6 +74,7 @@ def test_eager_step_matches_the_recorded_one(reference, name):
 
 
 @pytest.mark.parametrize("name", ["train_policy3_g", "s4_policy3_g", "s5_policy3_g"])
+@pytest.mark.slow
 def test_compiled_step_matches_its_eager_twin(reference, name):
     case = reference[name]
     eager = replay(case, *CASES[name])
@@ -83,6 +84,7 @@ def test_compiled_step_matches_its_eager_twin(reference, name):
             assert close(b[key], a[key], key), (name, key, (b[key].double() - a[key].double()).abs().max())
 
 
+@pytest.mark.slow
 def test_compiled_forest_matches_its_eager_twin():
     # The forest (obstacles drawn per episode, per world) has no recorded reference: the compiled
     # step must match its eager twin along 30 steps of seeded random actions, with episodes of 12

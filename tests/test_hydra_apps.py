@@ -37,6 +37,7 @@ def user_folder(root: Path, text: str = CORRIDOR, name: str = "corridor") -> Pat
     return root / "my_conf"
 
 
+@pytest.mark.slow
 def test_a_users_scenario_from_config_dir_is_trained_on_and_evaluated(tmp_path):
     conf = user_folder(tmp_path)
     run_script("train.py", "--config-dir", str(conf), "scenario=corridor", *TINY, cwd=tmp_path)
@@ -49,6 +50,7 @@ def test_a_users_scenario_from_config_dir_is_trained_on_and_evaluated(tmp_path):
     assert "Policy3-G on corridor" in proc.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("door", ["file", "pkg"])
 def test_hydra_searchpath_adds_a_scenario(tmp_path, door):
     if door == "file":
@@ -75,6 +77,7 @@ def test_a_bad_value_in_a_users_file_names_the_file_and_the_key(tmp_path):
     assert str(conf / "scenario" / "crowd.yaml") in proc.stderr
 
 
+@pytest.mark.slow
 def test_optuna_tunes_a_policy_through_the_train_apps_objective(tmp_path):
     if importlib.util.find_spec("hydra_plugins.hydra_optuna_sweeper") is None:
         pytest.skip("the optuna sweeper is the optuna extra (pip install flock_torchrl[optuna])")
@@ -91,6 +94,7 @@ def test_optuna_tunes_a_policy_through_the_train_apps_objective(tmp_path):
     assert 0.0 <= result["best_value"] <= 1.0
 
 
+@pytest.mark.slow
 def test_a_launcher_without_its_plugin_says_which_extra(tmp_path):
     if importlib.util.find_spec("hydra_plugins.hydra_submitit_launcher") is not None:
         pytest.skip("the slurm extra is installed")
@@ -98,6 +102,7 @@ def test_a_launcher_without_its_plugin_says_which_extra(tmp_path):
     assert proc.returncode == 2 and "flock_torchrl[slurm]" in proc.stderr and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_help_names_the_app_and_offers_no_schemas(tmp_path):
     for script, app in (("train.py", "train"), ("evaluate.py", "evaluate"), ("reproduce.py", "reproduce")):
         text = run_script(script, "--help", cwd=tmp_path).stdout
@@ -129,6 +134,7 @@ def test_each_job_is_converted_and_checked_once(tmp_path, monkeypatch):
     assert len(list((tmp_path / "runs" / "multirun").glob("*/*/tiny/*/policy3_g/seed*"))) == 2  # the sweep's folder
 
 
+@pytest.mark.slow
 def test_tensorboard_logs_the_hyperparameters(tmp_path):
     if importlib.util.find_spec("tensorboard") is None:
         pytest.skip("tensorboard is the tensorboard extra")
@@ -152,6 +158,7 @@ def test_a_logger_that_is_not_installed_is_a_config_error_before_any_folder(tmp_
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_the_package_imports_where_fcntl_does_not_exist(tmp_path):
     code = ("import sys; sys.modules['fcntl'] = None; import flock_torchrl; from flock_torchrl import FlockingEnv; "
             "print(FlockingEnv('train', num_envs=2).num_envs)")

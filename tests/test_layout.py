@@ -119,3 +119,24 @@ def test_docs_name_files_and_sections_that_exist():
             assert any(h.startswith(f"## {number}.") for h in spec), f"{source.relative_to(root)}: section {number}"
         for stray in ("BASELINES.md", "SPEC.md", "STYLE.md"):
             assert stray not in text, f"{source.relative_to(root)} names {stray}, a file outside the repository"
+
+
+def _marked_slow(decorators: list[ast.expr]) -> bool:
+    return any(ast.unparse(d).endswith("mark.slow") for d in decorators)
+
+
+def test_every_test_file_keeps_a_fast_test_and_make_test_leaves_out_only_slow_ones():
+    """``make test`` (``-m "not slow"``) still runs every test file; ``make test-all`` runs the
+    tests marked slow too, and CI (``.ci/run``) runs ``make test-all``."""
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        tree = ast.parse(path.read_text())
+        whole = [n for n in tree.body if isinstance(n, ast.Assign) and any(getattr(t, "id", "") == "pytestmark"
+                                                                           for t in n.targets)]
+        assert not any("slow" in ast.unparse(n.value) for n in whole), f"{path.name} is slow as a whole"
+        fast = [n.name for n in tree.body if isinstance(n, ast.FunctionDef) and n.name.startswith("test_")
+                and not _marked_slow(n.decorator_list)]
+        assert fast, f"{path.name} has no test outside the slow tier"
+    make = (ROOT / "Makefile").read_text()
+    recipe = {t: make.split(f"\n{t}: ")[1].split("\n\n")[0] for t in ("test", "test-all")}
+    assert '-m "not slow"' in recipe["test"] and "-m" not in recipe["test-all"].replace("-m pytest", "")
+    assert "make test-all" in (ROOT / ".ci" / "run").read_text()

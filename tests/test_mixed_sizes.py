@@ -54,6 +54,7 @@ def mixed(*overrides):
                                                    *overrides])
 
 
+@pytest.mark.slow
 def test_a_mixed_run_trains_resumes_exactly_and_flies_any_size(tmp_path):
     whole = train(mixed("experiment.max_frames=192"), tmp_path / "whole")
     train(mixed("experiment.max_frames=96"), tmp_path / "split")

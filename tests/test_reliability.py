@@ -1,5 +1,6 @@
 """Runs that survive their users: config errors, signals, concurrent runs, resumes, corrupted
-files, env misuse. Each test is an observation of issue 9 that failed before."""
+files. Each test is an observation of issue 9 that failed before (its env misuse, item 7, is in
+tests/test_env.py)."""
 
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from helpers import script_env
+from helpers import first_fast, script_env
 
-from flock_torchrl import CheckpointError, FlockingEnv
+from flock_torchrl import CheckpointError
 from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
@@ -53,7 +54,7 @@ def tiny(*overrides: str):
 
 
 # ---------------------------------------------------------------------------- 6: config errors
-@pytest.mark.parametrize("bad, key", [
+@pytest.mark.parametrize("bad, key", first_fast([
     ("seed=-1", "seed: must be an integer >= 0"),
     ("seed=99999999999999999999", "seed: must be an integer >= 0 and <= 4294967295"),
     ("device=gpu0", "device: must be cpu, cuda"),
@@ -62,7 +63,7 @@ def tiny(*overrides: str):
     ("scenario.fov=7", "scenario.fov: must be a positive finite number and <= 6.28319"),
     ("policy=policy_ma", "policy: Policy-MA is rule-based"),
     ("experiment.workers=3", "experiment.workers: 3 must divide num_envs=4"),
-])
+]))
 def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key):
     if bad == "device=cuda" and torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
@@ -72,6 +73,7 @@ def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key)
     assert list(tmp_path.iterdir()) == []  # no run folder, no .hydra, no log
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad, key", [("scenario.n_uavs=abc", "scenario.n_uavs"), ("seed=abc", "seed"),
                                       ("policy=nope", "policy/nope"), ("algo.lr_critc=1", "lr_critc")])
 def test_composition_errors_are_hydras_own_and_leave_nothing(tmp_path, bad, key):
@@ -81,6 +83,7 @@ def test_composition_errors_are_hydras_own_and_leave_nothing(tmp_path, bad, key)
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_sweep_is_checked_whole_before_any_job_runs(tmp_path):
     code, _, err = finish(start("-m", *TINY, "seed=0,1", "algo.lr_actor=0.001,-1", cwd=tmp_path))
     assert code == 2 and "algo.lr_actor" in err and list(tmp_path.iterdir()) == []
@@ -96,6 +99,7 @@ def resume_line(err: str) -> list[str]:
 
 
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.slow
 def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path, signum, status):
     budget = ["experiment.max_frames=3200", "experiment.checkpoint_every_frames=64"]
     folder = tmp_path / "run"
@@ -119,6 +123,7 @@ def test_a_signal_checkpoints_then_resume_matches_an_uninterrupted_run(tmp_path,
     assert (tmp_path / "whole" / "episodes.csv").read_text() == (folder / "episodes.csv").read_text()
 
 
+@pytest.mark.slow
 def test_a_second_ctrl_c_aborts_at_once():
     from flock_torchrl.run.trainer import Signals, Stopped
 
@@ -134,6 +139,7 @@ def test_a_second_ctrl_c_aborts_at_once():
 
 
 # ---------------------------------------------------------------------------- 3: concurrent runs
+@pytest.mark.slow
 def test_a_second_process_on_the_same_folder_is_refused(tmp_path):
     folder = tmp_path / "run"
     first = start(*TINY, "experiment.max_frames=100000", f"hydra.run.dir={folder}", cwd=tmp_path)
@@ -170,6 +176,7 @@ def test_a_finished_run_without_its_buffer_resumes_to_a_no_op(tmp_path):
     assert (tmp_path / "run" / "last.pt").read_bytes() == before
 
 
+@pytest.mark.slow
 def test_the_demo_twice(tmp_path):
     # Observation 1: `make demo` run twice exited 2 the second time.
     args = ["experiment=demo", "resume=auto", "experiment.max_frames=512", "experiment.init_random_frames=256",
@@ -217,42 +224,8 @@ def test_corrupted_foreign_and_wrong_kind_checkpoints_say_which(tmp_path):
         load_checkpoint(tmp_path / "odd.pt")
 
 
-# ---------------------------------------------------------------------------- 7: env misuse
-@pytest.fixture
-def env():
-    env = FlockingEnv("train", num_envs=2, seed=0, max_steps=2)
-    env.reset()
-    return env
-
-
-def test_env_names_a_wrong_action(env):
-    td = env.current()
-    with pytest.raises(ValueError, match=r"\('agents', 'action'\) has shape \[2, 5, 3\], expected \[2, 5, 2\]"):
-        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 3)))
-    td = env.current()
-    with pytest.raises(ValueError, match=r"no \('agents', 'action'\) entry"):
-        env.step(td)
-    with pytest.raises(ValueError, match="dtype torch.int64, expected a floating point"):
-        env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.int64)))
-    # float64 is cast: the env's state and outputs stay float32.
-    out = env.step(env.current().set(("agents", "action"), torch.zeros(2, 5, 2, dtype=torch.float64)))["next"]
-    assert out["agents", "observation"].dtype == torch.float32 and env.world["position"].dtype == torch.float32
-
-
-def test_env_refuses_to_step_a_done_world(env):
-    td = env.current().set(("agents", "action"), torch.zeros(2, 5, 2))
-    td = env.step(td)["next"]
-    td = env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))["next"]
-    assert td["done"].all()  # max_steps = 2
-    with pytest.raises(ValueError, match=r"world\(s\) 0, 1 are done; reset them first"):
-        env.step(td.set(("agents", "action"), torch.zeros(2, 5, 2)))
-    # TorchRL's way continues: step_and_maybe_reset resets the done worlds.
-    td = env.rand_action(env.reset())
-    for _ in range(5):
-        _, td = env.step_and_maybe_reset(env.rand_action(td))
-
-
 # ---------------------------------------------------------------------------- 8: logs after kill -9
+@pytest.mark.slow
 def test_logs_after_kill_and_resume_equal_an_uninterrupted_runs(tmp_path):
     budget = ["experiment.max_frames=2400", "experiment.checkpoint_every_frames=160", "logger=csv"]
     folder = tmp_path / "run"

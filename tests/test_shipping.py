@@ -3,6 +3,8 @@ with its MANIFEST, files of the earlier flat layout moved into place."""
 
 import shutil
 
+import pytest
+
 from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.run import trainer
 from flock_torchrl.run.shipping import ship_checkpoints
@@ -17,6 +19,7 @@ def tiny_run(runs, experiment_folder, seed, **overrides):
     return train(cfg, runs / experiment_folder / "paper_fit" / "policy3_g" / f"seed{seed}")
 
 
+@pytest.mark.slow
 def test_only_finished_runs_are_shipped_into_their_collections(tmp_path, monkeypatch):
     runs, ckpts = tmp_path / "runs", tmp_path / "checkpoints"
     tiny_run(runs, "tiny", 0, **{"experiment.max_frames": 32})

@@ -165,6 +165,7 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     assert "INCOMPLETE" in (tmp_path / "results" / "fidelity.md").read_text()
 
 
+@pytest.mark.slow
 def test_reproduce_app_checks_every_checkpoint_before_the_first_row(tmp_path):
     # Nothing shipped where checkpoints_dir points: refused at once, naming the setting, nothing written.
     out = tmp_path / "out"
@@ -216,6 +217,7 @@ def test_comparison_by_hand(tmp_path):
     assert "0 of 2 rows within it" in text and "95.0 % / 95.8 % / +0.8 pp" in text and "0.500 / 0.650 / +0.150 ✗" in text
 
 
+@pytest.mark.slow
 def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
     policy = goal_seeking_policy()
     first = reproduce(3, "literal", episodes=3, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "a",
@@ -235,3 +237,16 @@ def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
     proc = run_script("reproduce.py", "table=3", "+compare_tolerance.speedy=1", f"hydra.run.dir={out}",
                       cwd=tmp_path, check=False)
     assert proc.returncode == 2 and proc.stderr.startswith("error: compare_tolerance.speedy:") and not out.exists()
+
+
+def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
+    """report/scaling.py (make scaling) in the fast tier: one row per policy and size, the spawn
+    radius by the reading's rule (literal: 3 m up to N = 9, docs/specification.md section 9),
+    dashes for a rule-based policy's training, and the CSV, Markdown and plot written."""
+    from flock_torchrl.report.scaling import scaling
+
+    rows = scaling("policy_ma", "literal", [3], 1, out_dir=tmp_path, log=lambda message: None)
+    assert [(r["policy"], r["trained_sizes"], r["n_uavs"], r["n_episodes"]) for r in rows] == [("Policy-MA", "—", 3, 1)]
+    assert rows[0]["spawn_radius"] == pytest.approx(3.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling.csv", "scaling.md", "scaling.png"]
+    assert "| Policy-MA | — | 3 | 3.00 | " in (tmp_path / "scaling.md").read_text()

@@ -56,6 +56,7 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
         assert td["agents", "action"].abs().max() <= 1
 
 
+@pytest.mark.slow
 def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
     whole = train(tiny(), tmp_path / "whole")
     first = train(tiny("policy3_g", "experiment.max_frames=96"), tmp_path / "split")
@@ -164,6 +165,7 @@ def test_wandb_logger_works_offline(tmp_path, monkeypatch):
     assert list((tmp_path / "wb" / "wandb").glob("offline-run-*")), "no offline wandb run was written"
 
 
+@pytest.mark.slow
 def test_several_collector_processes(tmp_path):
     """workers=2: TorchRL's MultiSyncCollector over two env processes, same learner."""
     result = train(tiny("policy3_g", "experiment.workers=2", "experiment.max_frames=64"), tmp_path / "run")
@@ -172,6 +174,7 @@ def test_several_collector_processes(tmp_path):
     assert "env_state" not in ckpt  # several processes: a resume restarts their episodes
 
 
+@pytest.mark.slow
 def test_compiled_learner_is_its_eager_twin():
     """compile=true changes the speed, not the learning: a few SAC updates agree with eager
     ones up to float round-off, and the compiled learner saves and restores its state."""
@@ -197,6 +200,7 @@ def test_compiled_learner_is_its_eager_twin():
     assert "_target_entropy" in state["loss"]
 
 
+@pytest.mark.slow
 def test_a_compiled_runs_first_update_is_booked_as_compile(tmp_path):
     """The time split keeps torch.compile's work apart from the updates it speeds up (the
     paper-loop benchmark leaves it out); an eager run books none."""
@@ -223,6 +227,7 @@ def test_compile_step_compiles_the_env_and_leaves_the_loss_eager():
         assert env.compile_step is step and (learner.loss_fn is not learner.loss) is loss, mode
 
 
+@pytest.mark.slow
 def test_two_compiled_learners_of_different_sizes_share_a_process():
     """A sweep's worker process (or this test session) compiles learners of several sizes: each
     recompiles for its own shapes (static), where dynamic shapes broke TorchRL's vmapped twin Q."""
