@@ -321,6 +321,8 @@ class PreRunCheck(Callback):
         self.app = app
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if self.app == "train":
+            _guard(lambda: _check_resume_folder(config))
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
         _armed()
@@ -341,6 +343,23 @@ class PreRunCheck(Callback):
             job = loader.load_sweep_config(config, list(overrides))
             out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
             _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out), job)
+
+
+def _check_resume_folder(config: DictConfig) -> None:
+    """A ``resume.yaml`` written before run folders could move names its folder by its absolute
+    path: read from a copy or a moved folder, it would continue (or miss) the original."""
+    from .config import config_folder
+    from .run.run_folder import RESUME_CONFIG
+
+    if str(config.hydra.job.config_name) != RESUME_CONFIG:
+        return
+    folder = Path(config_folder(config.hydra.runtime.config_sources, RESUME_CONFIG))
+    out = Path(str(config.hydra.run.dir)).resolve()
+    chosen = any(str(o).startswith("hydra.run.dir=") for o in config.hydra.overrides.hydra)
+    if out != folder and not chosen:
+        raise ConfigError("hydra.run.dir", f"{folder / (RESUME_CONFIG + '.yaml')} names another run folder, {out} "
+                                           f"(it was copied or moved); pass hydra.run.dir={folder} to continue "
+                                           "this one (nothing was changed)")
 
 
 def sweep_jobs(config: DictConfig) -> list[list[str]] | None:

@@ -94,6 +94,17 @@ def run_name(base: Any, overrides: Any = "") -> str:
     return safe_name(str(base) + (f"__{overrides}" if overrides else ""))
 
 
+def config_folder(sources: Any, config_name: Any) -> str:
+    """The folder Hydra read the primary config ``<config_name>.yaml`` from: the first ``file``
+    source of ``hydra.runtime.config_sources`` that holds it. A run's ``resume.yaml`` sets its
+    output folder to this, so a copied or moved run folder continues where it stands now."""
+    for source in sources or ():
+        path = Path(str(source["path"]))
+        if str(source["schema"]) == "file" and (path / f"{config_name}.yaml").is_file():
+            return str(path.resolve())
+    raise ConfigError("hydra.run.dir", f"no folder of the config search path holds {config_name}.yaml")
+
+
 def _register_resolvers() -> None:
     # ``${pi:0.5}`` = 0.5 pi: angles written as the paper writes them.
     if not OmegaConf.has_resolver("pi"):
@@ -107,6 +118,10 @@ def _register_resolvers() -> None:
     # ``${flock.concat:[a,b],${some_list}}``: lists joined (one list written once, used twice).
     if not OmegaConf.has_resolver("flock.concat"):
         OmegaConf.register_new_resolver("flock.concat", lambda *lists: [x for items in lists for x in items])
+    # ``${flock.config_folder:${hydra.runtime.config_sources},${hydra.job.config_name}}``: where
+    # the primary config was read (a run folder's resume.yaml is its own output folder).
+    if not OmegaConf.has_resolver("flock.config_folder"):
+        OmegaConf.register_new_resolver("flock.config_folder", config_folder)
 
 
 _register_resolvers()

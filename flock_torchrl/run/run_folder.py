@@ -28,6 +28,9 @@ from ..io import write_text
 from ..policies.checkpoint import CheckpointError
 
 RESUME_CONFIG = "resume"
+# resume.yaml's output folder: the folder it is read from (a copy continues the copy, a moved
+# run continues where it stands; the folder it was written in is never touched).
+RUN_FOLDER = "${flock.config_folder:${hydra.runtime.config_sources},${hydra.job.config_name}}"
 
 
 class RunLock:
@@ -168,11 +171,11 @@ def resume_command(run_dir: Path) -> str:
 
 def write_run_config(run_dir: Path, resolved: dict[str, Any], hydra: dict[str, Any]) -> None:
     """``config.yaml`` (what runs, resolved) and ``resume.yaml`` (the same as a primary config of
-    its own, with its Hydra settings and this folder as the output folder)."""
+    its own, with its Hydra settings and, as its output folder, the folder it is read from)."""
     write_text(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(resolved)))
     resume = {"defaults": ["train_schema", {"override hydra/job_logging": "stdout"}, "_self_"],
               **{k: v for k, v in resolved.items()}, "resume": "true",
-              "hydra": {**hydra, "run": {"dir": str(run_dir.resolve())}}}
+              "hydra": {**hydra, "run": {"dir": RUN_FOLDER}}}
     text = OmegaConf.to_yaml(OmegaConf.create(resume))
     write_text(run_dir / f"{RESUME_CONFIG}.yaml",
                f"# Continue this run (only budgets, logging and runtime options may change):\n"
