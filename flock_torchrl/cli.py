@@ -118,9 +118,11 @@ def _evaluate_handles(cfg: EvaluateConfig) -> list:
 
 
 def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
+    from .run.memory import check_episodes_memory
     from .world.spawn import check_spawn_feasible
 
     check_spawn_feasible(cfg.scenario)
+    check_episodes_memory(cfg.scenario, cfg.episodes)
     _evaluate_handles(cfg)
 
 
@@ -144,7 +146,9 @@ def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
 # -- reproduce, figures, scaling
 def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
+    from .run.memory import check_episodes_memory
 
+    check_episodes_memory(cfg.scenario, cfg.episodes)
     check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only,
                        recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to)
 
@@ -178,7 +182,9 @@ def _run_figures(cfg: FiguresConfig, out: Path) -> None:
 
 def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
     from .policies.registry import resolve
+    from .run.memory import check_episodes_memory
 
+    check_episodes_memory(dataclasses.replace(cfg.scenario, n_uavs=max(cfg.sizes)), cfg.episodes)
     for policy in (cfg.policy_name, *cfg.others):
         resolve(policy, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device)
 

@@ -35,6 +35,10 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 
+# The largest swarm any config may ask for (scenario.n_uavs, experiment.swarm_sizes, sizes).
+MAX_UAVS = 2000
+
+
 class ConfigError(ValueError):
     """A configuration value is invalid. ``key`` is the dotted name of the field."""
 
@@ -368,7 +372,7 @@ class ScenarioConfig(Schema):
         choice(k("reading"), self.reading, READINGS)
         # Bounds keep a config from asking for more than any machine holds (the world's
         # [B, N, N] pairwise terms, the episode loop): far above every use, well below overflow.
-        count(k("n_uavs"), self.n_uavs, 1, 2000)
+        count(k("n_uavs"), self.n_uavs, 1, MAX_UAVS)
         count(k("max_steps"), self.max_steps, 1, 10**7)
         count(k("n_beams"), self.n_beams, 1, 3600)
         for name in ("n_scan", "n_cam"):
@@ -662,7 +666,7 @@ class ExperimentConfig(Schema):
         if self.swarm_sizes:
             key = _key(p, "swarm_sizes")
             for i, n in enumerate(self.swarm_sizes):
-                count(f"{key}[{i}]", n, 1, 10**5)
+                count(f"{key}[{i}]", n, 1, MAX_UAVS)  # the bound of scenario.n_uavs
             if len(set(self.swarm_sizes)) != len(self.swarm_sizes):
                 _fail(key, f"sizes repeat: {list(self.swarm_sizes)}")
             if self.num_envs % len(self.swarm_sizes):
@@ -915,7 +919,7 @@ class ScalingConfig(WorldApp):
         if not self.sizes:
             _fail("sizes", "a list of swarm sizes, got []")
         for n in self.sizes:
-            count("sizes", n, 1, 2000)
+            count("sizes", n, 1, MAX_UAVS)
         _check_run(self)
         return self._mark_checked()
 

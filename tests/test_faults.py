@@ -71,3 +71,73 @@ def test_an_old_resume_yaml_naming_another_folder_is_refused(tmp_path):
     assert proc.returncode == 2
     one_line(proc.stderr, f"hydra.run.dir: {folder / 'resume.yaml'} names another run folder, {tmp_path / 'run'}")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy"]
+
+
+# ---------------------------------------------------------------------------- 2: memory
+def limit_memory(gib: float):
+    """A ``preexec_fn``: the child's address space is limited to ``gib`` GiB (``ulimit -v``)."""
+    def limit() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_AS, (int(gib * 2**30), int(gib * 2**30)))
+    return limit
+
+
+@pytest.mark.parametrize("app, args, gib, key", [
+    ("evaluate.py", ["policy=policy_ma", "episodes=10000000"], None, "episodes: evaluating 10000000 episodes"),
+    ("evaluate.py", ["policy=policy_ma", "episodes=1000000"], 8, "episodes: evaluating 1000000 episodes"),
+    ("train.py", [*TINY, "experiment.eval_episodes=1000000"], None, "experiment.eval_episodes: the run needs"),
+    ("train.py", [*TINY, "algo.buffer_size=20000000"], 5, "algo.buffer_size: the run needs"),
+    ("train.py", [*TINY, "experiment.swarm_sizes=[5,100000]"], None,
+     "experiment.swarm_sizes[1]: must be an integer >= 1 and <= 2000"),
+    ("evaluate.py", ["policy=policy_ma", "scenario=forest", "scenario.random_circles=1000", "episodes=2",
+                     "scenario.random_region=[-1000000,-1000000,1000000,1000000]"], None,
+     "scenario.random_region: checking that the swarm and the forest can always be placed needs about"),
+])
+def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_path, app, args, gib, key):
+    proc = script(app, *args, f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120,
+                  preexec=limit_memory(gib) if gib else None)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    one_line(proc.stderr, key)
+    if gib:
+        assert f"its ulimit -v of {gib:.1f} GiB" in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_check_memory_names_the_costliest_key_and_the_bound():
+    from flock_torchrl.config import ConfigError
+    from flock_torchrl.run.memory import Usable, check_memory
+
+    check_memory({"a": 2**30, "b": 2**30}, "x", Usable(3 * 2**30, "a test bound"))  # fits
+    with pytest.raises(ConfigError, match=r"^b: x needs about 3.0 GiB, 2.0 GiB of it for b, but this process can "
+                                          r"use 2.5 GiB \(a test bound\)"):
+        check_memory({"a": 2**30, "b": 2 * 2**30}, "x", Usable(int(2.5 * 2**30), "a test bound"))
+
+
+def test_usable_memory_sees_the_processs_own_limit():
+    code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (6 * 2**30, 6 * 2**30)); "
+            "from flock_torchrl.run.memory import usable_memory; u = usable_memory(); print(u.bytes, u.what)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=60)
+    used, what = int(out.stdout.split()[0]), out.stdout.split(" ", 1)[1]
+    assert what.startswith("its ulimit -v of 6.0 GiB") and 0 < used < 6 * 2**30, out
+
+
+@pytest.mark.parametrize("scenario, n, worlds", [("s1", 5, 4000), ("s2", 100, 400)])
+def test_the_world_estimate_bounds_the_measured_peak(scenario, n, worlds):
+    # Peak resident memory of stepping `worlds` worlds, in a fresh process, against world_bytes.
+    code = f"""
+from flock_torchrl import FlockingEnv
+from flock_torchrl.config import EvaluateConfig, compose
+from flock_torchrl.run.memory import world_bytes
+s = EvaluateConfig.from_config(compose("evaluate", ["scenario={scenario}", "scenario.n_uavs={n}", "episodes=1"])).scenario
+env = FlockingEnv(s, num_envs=1, seed=0); env.rollout(3, break_when_any_done=False)
+def status(field):
+    return next(int(l.split()[1]) * 1024 for l in open("/proc/self/status") if l.startswith(field))
+open("/proc/self/clear_refs", "w").write("5")  # the peak (VmHWM) starts again from here
+base = status("VmRSS:")
+env = FlockingEnv(s, num_envs={worlds}, seed=0); env.rollout(5, break_when_any_done=False)
+print(status("VmHWM:") - base, {worlds} * world_bytes(s))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=120)
+    measured, estimate = map(int, out.stdout.split())
+    assert measured <= estimate <= 6 * measured, (measured, estimate)

@@ -49,6 +49,7 @@ from ..world.env import FlockingEnv
 from ..world.metrics import CELL_METRICS
 from ..world.sensors import observation_size, state_size
 from ..world.spawn import check_spawn_feasible
+from .memory import check_memory, train_bytes
 from .run_folder import (EpisodeLog, RunLock, clean_stale_temporaries, logger_hparams, make_logger, resume_command,
                          truncate_scalar_logs, write_run_config)
 from .schedule import Schedule, evaluated_at_end
@@ -126,27 +127,9 @@ def config_differences(saved: Any, requested: Any, allowed: Sequence[str]) -> li
 
 
 # ---------------------------------------------------------------------------- before anything runs
-def available_memory() -> int | None:
-    """Bytes of memory this machine can still give (``None`` where the OS does not say)."""
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def memory_estimate(cfg: TrainConfig) -> dict[str, int]:
-    """Bytes the run will hold, by part: the replay buffer (swarm transitions of every key the
-    learner stores) and the worlds (the env state and one step's pairwise ``[B, N, N]`` terms)."""
-    s, n, b = cfg.scenario, max(t.n_uavs for t in cfg.train_scenarios), cfg.experiment.num_envs
-    obs, state = observation_size(s), state_size(s)
-    per_uav = 4 * (2 * (obs + state) + 2 + 1 + 1 + 2 + 2)          # float32 obs/state twice, action, ...
-    parts = {}
-    if cfg.algo.name in ("sac", "ddpg"):
-        capacity = max(1, math.ceil(cfg.algo.buffer_size / n))
-        parts["replay buffer"] = capacity * n * per_uav
-    # Per world: about 2 kB per UAV of state and sensing, 40 float32 [N, N] pairwise terms, the beams.
-    parts["worlds"] = b * n * (2048 + 160 * n + 16 * s.n_beams)
-    return parts
+    """Bytes the run will hold, by the config key that sets them (:func:`.memory.train_bytes`)."""
+    return train_bytes(cfg)
 
 
 def prepare(cfg: TrainConfig, run_dir: Path) -> None:
@@ -160,14 +143,7 @@ def prepare(cfg: TrainConfig, run_dir: Path) -> None:
         except ConfigError as exc:
             raise ConfigError("experiment.swarm_sizes" if cfg.experiment.swarm_sizes else exc.key,
                               exc.message) from None
-    free = available_memory()
-    if free is not None:
-        need = memory_estimate(cfg)
-        if sum(need.values()) > free:
-            worst = max(need, key=need.get)
-            key = "algo.buffer_size" if worst == "replay buffer" else "experiment.num_envs or scenario.n_uavs"
-            raise ConfigError(key, f"the {worst} needs about {need[worst] / 2**30:.1f} GiB, but this machine has "
-                                   f"{free / 2**30:.1f} GiB free")
+    check_memory(memory_estimate(cfg), "the run")
     exists = (run_dir / LAST).exists()
     mode = cfg.resume_mode
     if mode == "never" and exists:
