@@ -141,3 +141,57 @@ print(status("VmHWM:") - base, {worlds} * world_bytes(s))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=120)
     measured, estimate = map(int, out.stdout.split())
     assert measured <= estimate <= 6 * measured, (measured, estimate)
+
+
+# ---------------------------------------------------------------------------- 4: logs
+def test_scalar_logs_drop_torn_tails_bad_bytes_and_rows_past_the_checkpoint(tmp_path):
+    from flock_torchrl.run.run_folder import truncate_scalar_logs
+
+    log = tmp_path / "logs" / "scalars" / "perf" / "frames_per_s.csv"
+    log.parent.mkdir(parents=True)
+    log.write_bytes(b"32,1.5\n64,2.5\n9\xff6,3.5\n96,x\n80\n128,4.5\n214")  # a bad byte, a torn tail, ...
+    truncate_scalar_logs(tmp_path, 96)
+    assert log.read_text() == "32,1.5\n64,2.5\n"
+    truncate_scalar_logs(tmp_path, 96)  # nothing left to drop: unchanged
+    assert log.read_text() == "32,1.5\n64,2.5\n"
+    truncate_scalar_logs(tmp_path, None)  # a fresh run: the dead run's rows go
+    assert not log.exists()
+
+
+def test_the_episode_log_drops_what_a_dead_run_left(tmp_path):
+    from flock_torchrl.run.run_folder import EpisodeLog
+
+    path = tmp_path / "episodes.csv"
+    path.write_bytes(b"episode,frames,reward\n1,40,0.5\n2,8\xff0,0.25\n3,120,0.75\n4,160,0.1\n5,2")
+    log = EpisodeLog(path, ["episode", "frames", "reward"], keep_up_to=3)
+    log.write([[4, 160, 0.5]])
+    log.close()
+    assert path.read_text() == "episode,frames,reward\n1,40,0.5\n3,120,0.75\n4,160,0.5\n"
+    path.write_bytes(b"epi\xffsode,frames,reward\n1,40,0.5\n")  # a torn header is written again
+    EpisodeLog(path, ["episode", "frames", "reward"], keep_up_to=3).close()
+    assert path.read_text() == "episode,frames,reward\n1,40,0.5\n"
+
+
+@pytest.mark.slow
+def test_a_run_restarted_before_its_first_checkpoint_logs_like_an_uninterrupted_one(tmp_path):
+    # A run killed before its first checkpoint left rows (and a torn, undecodable tail); a
+    # restart with resume=auto (as make train-all does) starts afresh: its logs are the
+    # uninterrupted run's.
+    budget = ["experiment.max_frames=128", "experiment.checkpoint_every_frames=0", "experiment.log_every_frames=16",
+              "logger=csv", "resume=auto"]
+    dead = tmp_path / "dead" / "logs" / "scalars" / "perf" / "frames_per_s.csv"
+    dead.parent.mkdir(parents=True)
+    dead.write_bytes(b"16,123.0\n32,456.0\n48,7\xff")
+    (tmp_path / "dead" / "episodes.csv").write_text("episode,frames\n1,40\n")
+    train(tiny(*budget), tmp_path / "dead")
+    train(tiny(*budget), tmp_path / "whole")
+    whole = sorted(p.relative_to(tmp_path / "whole") for p in (tmp_path / "whole" / "logs").rglob("*.csv"))
+    again = sorted(p.relative_to(tmp_path / "dead") for p in (tmp_path / "dead" / "logs").rglob("*.csv"))
+    assert whole == again and whole
+    for rel in whole:
+        steps = [[line.split(",")[0] for line in (tmp_path / f / rel).read_text().splitlines()]
+                 for f in ("whole", "dead")]
+        assert steps[0] == steps[1], rel
+        if "perf" not in rel.parts:  # timings differ, everything learned is equal
+            assert (tmp_path / "whole" / rel).read_text() == (tmp_path / "dead" / rel).read_text(), rel
+    assert (tmp_path / "whole" / "episodes.csv").read_text() == (tmp_path / "dead" / "episodes.csv").read_text()

@@ -428,8 +428,7 @@ class _Training:
             return self._finish(signals)
 
     def _open_logs(self, resumed: bool) -> None:
-        if resumed:
-            truncate_scalar_logs(self.run_dir, self.counters["frames"])
+        truncate_scalar_logs(self.run_dir, self.counters["frames"] if resumed else None)  # fresh: a dead run's go
         log = self.cfg.logger
         self.logger = make_logger(log.backend, log.project, log.mode, self.run_dir,
                                   f"{self.cfg.policy.id}_seed{self.cfg.seed}")
