@@ -269,21 +269,50 @@ def _task_yaml(cfg: DictConfig) -> str:
     return OmegaConf.to_yaml(task, resolve=True)
 
 
-def checked(app: str, cfg: DictConfig, out: Path) -> Schema:
-    """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error)."""
+def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") -> Schema:
+    """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error); ``key``:
+    the setting that chose ``out``."""
     obj = APPS[app].schema.from_config(cfg)
+    check_writable(out, key)
     APPS[app].prepare(obj, out)
     return obj
+
+
+def check_writable(folder: Path, key: str) -> None:
+    """Refuse an output folder that cannot be made or written, before Hydra creates it: a file
+    tried in its nearest existing folder (and removed at once) must be writable."""
+    import tempfile
+
+    from .io import write_failure
+
+    probe = Path(folder).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(key, f"{folder} cannot be made: {probe} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as exc:
+        why = (write_failure(OSError(exc.errno, exc.strerror, str(probe))) or
+               f"cannot write {probe}: {exc.strerror}")
+        raise ConfigError(key, f"{folder} cannot be written ({why})") from None
 
 
 def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
     """Run ``fn``; report this project's errors as one line with exit status 2 (a config error
     also names the file its group's choice came from, when that is a file)."""
+    from .io import write_failure
+
     try:
         return fn()
     except _errors() as exc:
         source = _source_of(config, getattr(exc, "key", "")) if config is not None else None
         fail(f"{exc} (in {source})" if source else exc)
+    except OSError as exc:  # a full disk, a file-size limit, a folder that cannot be written
+        if write_failure(exc) is None:
+            raise
+        fail(f"{write_failure(exc)}; files are written whole or not at all, nothing half-written was left")
 
 
 def _source_of(config: DictConfig, key: str) -> str | None:
@@ -348,7 +377,7 @@ class PreRunCheck(Callback):
         for overrides in jobs:
             job = loader.load_sweep_config(config, list(overrides))
             out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
-            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out), job)
+            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out, "hydra.sweep.dir"), job)
 
 
 def _check_resume_folder(config: DictConfig) -> None:
@@ -472,6 +501,54 @@ def _armed() -> None:
         signal.signal(signum, _stop)
 
 
+def _config_folders(argv: list[str]) -> list[Path]:
+    """The folders a command line adds to Hydra's search path: ``--config-dir`` / ``-cd`` and the
+    ``file://`` (or plain) entries of ``hydra.searchpath=[...]`` (parsed by Hydra's public
+    override parser)."""
+    import argparse
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--config-dir", "-cd")
+    known, rest = parser.parse_known_args(argv)
+    folders = [Path(known.config_dir)] if known.config_dir else []
+    for arg in rest:
+        if arg.lstrip("+~").startswith("hydra.searchpath="):
+            try:
+                value = OverridesParser.create().parse_overrides([arg])[0].value()
+            except Exception:  # Hydra names a malformed override itself
+                continue
+            for entry in value if isinstance(value, list) else [value]:
+                entry = str(entry)
+                if entry.startswith("file://") or "://" not in entry:
+                    folders.append(Path(entry.removeprefix("file://")))
+    return folders
+
+
+def check_yaml_files(folders: list[Path], depth: int = 4) -> None:
+    """Refuse a YAML file that does not parse in a folder the command line adds to the search
+    path (Hydra would fail on it with a long ``yaml.parser`` traceback), naming the file and
+    the line."""
+    import yaml
+
+    for folder in folders:
+        if not folder.is_dir():
+            continue
+        for path in sorted(folder.rglob("*.yaml")):
+            parts = path.relative_to(folder).parts
+            if len(parts) > depth or any(p.startswith(".") for p in parts[:-1]):
+                continue
+            try:
+                yaml.safe_load(path.read_text())
+            except yaml.YAMLError as exc:
+                mark = getattr(exc, "problem_mark", None)
+                where = f" (line {mark.line + 1}, column {mark.column + 1}: {exc.problem})" if mark else ""
+                raise AppError(f"{path} is not valid YAML{where}") from None
+            except (OSError, UnicodeDecodeError) as exc:
+                raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
+
+
 def main(app: str, noted: list[int] | None = None) -> Any:
     """Run the Hydra app ``app`` on ``sys.argv`` (a console script or ``scripts/<app>.py``);
     ``noted``: stop signals a script noted while it imported the package."""
@@ -485,6 +562,7 @@ def main(app: str, noted: list[int] | None = None) -> Any:
     try:
         _early_signals()
         _NOTED.extend(noted or [])  # after the handlers move here, so none is lost between
+        _guard(lambda: check_yaml_files(_config_folders(sys.argv[1:])))
         return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
     except Stopped as stop:
         print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "

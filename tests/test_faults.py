@@ -195,3 +195,84 @@ def test_a_run_restarted_before_its_first_checkpoint_logs_like_an_uninterrupted_
         if "perf" not in rel.parts:  # timings differ, everything learned is equal
             assert (tmp_path / "whole" / rel).read_text() == (tmp_path / "dead" / rel).read_text(), rel
     assert (tmp_path / "whole" / "episodes.csv").read_text() == (tmp_path / "dead" / "episodes.csv").read_text()
+
+
+# ---------------------------------------------------------------------------- 6: disks, limits, folders, YAML
+def test_a_full_disk_at_run_start_is_one_line_naming_the_file(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from flock_torchrl import io
+    from flock_torchrl.cli import _guard
+
+    real = io._atomic_write
+
+    def full(path, write):
+        if path.name == "config.yaml":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a real write raises it: no file name
+        return real(path, write)
+
+    monkeypatch.setattr(io, "_atomic_write", full)
+    run = tmp_path / "run"
+    with pytest.raises(SystemExit) as info:
+        _guard(lambda: train(tiny("experiment.max_frames=32"), run))
+    assert info.value.code == 2
+    one_line(capsys.readouterr().err, f"cannot write {run / 'config.yaml'}: no space left on the device")
+    assert not (run / "config.yaml").exists() and not list(run.glob(".*.tmp"))
+
+
+def limit_file_size(size: int):
+    def limit() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+    return limit
+
+
+@pytest.mark.slow
+def test_a_file_size_limit_at_checkpoint_time_is_one_line_naming_the_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    proc = script("train.py", *TINY, f"hydra.run.dir={run}", cwd=tmp_path, preexec=limit_file_size(100_000))
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    one_line(proc.stderr, f"cannot write {run / 'last.pt'}: it would pass this process's file-size limit (ulimit -f)")
+    assert "no checkpoint yet" in proc.stderr
+    assert not (run / "last.pt").exists() and not list(run.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("how", ["-cd", "searchpath"])
+def test_a_broken_yaml_in_the_search_path_is_one_line_naming_the_file(tmp_path, how):
+    bad = tmp_path / "mine" / "scenario" / "bad.yaml"
+    bad.parent.mkdir(parents=True)
+    bad.write_text("name: x\nn_uavs: [1, 2\nfoo: 1\n")
+    where = ["-cd", str(tmp_path / "mine")] if how == "-cd" else [f"hydra.searchpath=[file://{tmp_path / 'mine'}]"]
+    proc = script("evaluate.py", *where, "policy=policy_ma", "episodes=2", f"hydra.run.dir={tmp_path / 'out'}",
+                  cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    one_line(proc.stderr, f"{bad} is not valid YAML (line 3, column 4: expected ',' or ']', but got ':')")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("args, key", [
+    (["hydra.run.dir={blocker}/out"], "hydra.run.dir: {blocker}/out cannot be made: {blocker} is a file"),
+    (["-m", "hydra.sweep.dir={blocker}/sweep"], "hydra.sweep.dir: {blocker}/sweep/"),
+])
+def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, args, key):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    proc = script("evaluate.py", *(a.format(blocker=blocker) for a in args), "policy=policy_ma", "episodes=2",
+                  cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    one_line(proc.stderr, key.format(blocker=blocker))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_output_folder_is_one_line(tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        proc = script("evaluate.py", "policy=policy_ma", "episodes=2", f"hydra.run.dir={folder}", cwd=tmp_path)
+    finally:
+        folder.chmod(0o755)
+    assert proc.returncode == 2
+    one_line(proc.stderr, f"hydra.run.dir: {folder} cannot be written (cannot write {folder}: permission denied)")

@@ -43,6 +43,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
 
 from ..config import POLICY_SCENARIO_FIELDS, ConfigError, TrainConfig, compose, flatten, saved_scenario
+from ..io import write_failure
 from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint
 from ..policies.learners import make_learner
 from ..world.env import FlockingEnv
@@ -641,11 +642,14 @@ class _Training:
             self.saved_frames = self.counters["frames"]
             return path
         except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            failure = write_failure(OSError(exc.errno, exc.strerror, str(self.ckpt_path)))
+            if failure is None:
                 raise
-            kept = f"the last good checkpoint is {self.ckpt_path}" if self.ckpt_path.exists() else "no checkpoint yet"
-            raise CheckpointError(f"no space left on the device writing {self.ckpt_path} ({os.strerror(exc.errno)}); "
-                                  f"{kept}; free some space and resume") from None
+            exists = self.ckpt_path.exists()
+            kept = f"the last good checkpoint is {self.ckpt_path}" if exists else "no checkpoint yet"
+            fix = "free some space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "fix that"
+            raise CheckpointError(f"{failure} ({os.strerror(exc.errno)}); {kept}; {fix} and "
+                                  f"{'resume' if exists else 'run again'}") from None
 
 
 class _Progress:
