@@ -276,3 +276,61 @@ def test_a_read_only_output_folder_is_one_line(tmp_path):
         folder.chmod(0o755)
     assert proc.returncode == 2
     one_line(proc.stderr, f"hydra.run.dir: {folder} cannot be written (cannot write {folder}: permission denied)")
+
+
+# ---------------------------------------------------------------------------- 7: crafted checkpoints
+SHIPPED = ROOT / "checkpoints" / "paper_fit" / "policy3_g" / "seed0.pt"
+
+
+def crafted(path: Path, how: str) -> Path:
+    """A digest-valid checkpoint of the shipped Policy3-G, changed in one field."""
+    import torch
+
+    from flock_torchrl.policies import checkpoint as ck
+
+    payload = ck.load_checkpoint(SHIPPED)
+    kind = payload.pop("kind")
+    first = next(iter(payload["actor"]))
+    if how == "kind":
+        kind = "weird"
+    elif how == "shape":
+        payload["actor"][first] = torch.zeros(3, 3)
+    elif how == "nan":
+        payload["actor"][first] = payload["actor"][first].clone().fill_(float("nan"))
+    elif how == "reading":
+        payload["meta"]["reading"] = "weird"
+    data = ck._serialise(payload)
+    envelope = {"format": ck.FORMAT, "kind": kind, "sha256": hashlib.sha256(data).hexdigest(),
+                "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
+    path.write_bytes(ck._serialise(envelope))
+    return path
+
+
+CRAFTED = {"kind": "kind 'weird' is not a checkpoint kind (training, policy)",
+           "shape": "actor.{first} is [3, 3], but the network its meta describes",
+           "nan": "actor.{first} holds NaN or infinite weights",
+           "reading": "meta.reading is 'weird', not one of literal, paper_fit"}
+
+
+@pytest.mark.parametrize("how", sorted(CRAFTED))
+def test_a_crafted_digest_valid_checkpoint_is_refused_naming_the_field(tmp_path, how):
+    from flock_torchrl import CheckpointError
+    from flock_torchrl.policies.checkpoint import load_checkpoint, load_policy
+
+    bad = crafted(tmp_path / "bad.pt", how)
+    first = next(iter(load_checkpoint(SHIPPED)["actor"]))
+    with pytest.raises(CheckpointError) as info:
+        load_policy(bad)
+    message = str(info.value)
+    assert message.startswith(f"{bad}: {CRAFTED[how].format(first=first)}") and "\n" not in message
+    assert "pass reading=weird" not in message
+
+
+@pytest.mark.parametrize("how", ["kind", "nan"])
+def test_evaluate_refuses_a_crafted_checkpoint_in_one_line(tmp_path, how):
+    bad = crafted(tmp_path / "bad.pt", how)
+    proc = script("evaluate.py", f"checkpoint={bad}", "policy=policy3_g", "episodes=2",
+                  f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    one_line(proc.stderr, f"{bad}: {CRAFTED[how].split('{')[0]}")
+    assert not (tmp_path / "out").exists()
