@@ -307,27 +307,65 @@ def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
     try:
         return fn()
     except _errors() as exc:
-        source = _source_of(config, getattr(exc, "key", "")) if config is not None else None
-        fail(f"{exc} (in {source})" if source else exc)
+        if config is None or not getattr(exc, "key", ""):
+            fail(exc)
+        key, source = _blame(config, exc.key, getattr(exc, "also", ()))
+        message = f"{key}: {exc.message}" if key != exc.key else str(exc)
+        fail(f"{message} (in {source})" if source else message)
     except OSError as exc:  # a full disk, a file-size limit, a folder that cannot be written
         if write_failure(exc) is None:
             raise
         fail(f"{write_failure(exc)}; files are written whole or not at all, nothing half-written was left")
 
 
+def _covers(a: str, b: str) -> bool:
+    """Dotted keys ``a`` and ``b`` are the same, or one holds the other (``x.y`` and ``x.y[0]``, ``x.y.z``)."""
+    return a == b or any(b.startswith(a + sep) or a.startswith(b + sep) for sep in ".[")
+
+
+def _blame(config: DictConfig, key: str, also: tuple[str, ...] = ()) -> tuple[str, str | None]:
+    """The key to name for an error about ``key`` (or, when the user set one of them on the
+    command line, one of ``also``) and where its value came from: the command line's override,
+    the YAML file of its group that sets it, or ``None`` (a default, or not known)."""
+    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
+    if hydra is None:
+        return key, None
+    choices = set(hydra.runtime.choices)
+    for candidate in (key, *also):
+        for override in hydra.overrides.task:
+            name = str(override).lstrip("+~").split("=")[0]
+            if name == candidate or (name not in choices and _covers(name, candidate)):  # not a group's choice
+                return candidate, f"the command line's {override}"
+    return key, _source_of(config, key)
+
+
+def _sets(text: str, path: list[str]) -> bool:
+    """The YAML ``text`` sets the nested key ``path``."""
+    import yaml
+
+    try:
+        node: Any = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    for part in path:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
 def _source_of(config: DictConfig, key: str) -> str | None:
     """The YAML file behind the group a dotted ``key`` belongs to (``scenario.n_uavs`` ->
-    ``.../scenario/corridor.yaml``), from the composed config's own record of its choices and
-    search path; ``None`` when it is not a file."""
+    ``.../scenario/corridor.yaml``) when that file sets it, from the composed config's own
+    record of its choices and search path; ``None`` when it is not a file."""
+    import re
     from importlib.resources import files
 
     group = (key or "").split(".")[0]
     hydra = config.get("hydra") if isinstance(config, DictConfig) else None
     if not group or hydra is None:
         return None
-    for override in hydra.overrides.task:
-        if str(override).lstrip("+~").split("=")[0] == key:
-            return f"the command line's {override}"
+    inner = [p for p in re.sub(r"\[\d+\]", "", key).split(".")[1:] if p]
     choice = hydra.runtime.choices.get(group)
     if not choice:
         return None
@@ -337,11 +375,11 @@ def _source_of(config: DictConfig, key: str) -> str | None:
             if schema == "file":
                 candidate = Path(path) / group / f"{choice}.yaml"
                 if candidate.is_file():
-                    return str(candidate)
+                    return str(candidate) if _sets(candidate.read_text(), inner) else None
             elif schema == "pkg":
                 candidate = files(path) / group / f"{choice}.yaml"
                 if candidate.is_file():
-                    return f"pkg://{path}/{group}/{choice}.yaml"
+                    return f"pkg://{path}/{group}/{choice}.yaml" if _sets(candidate.read_text(), inner) else None
         except (ModuleNotFoundError, TypeError, ValueError):
             continue
     return None

@@ -42,10 +42,11 @@ MAX_UAVS = 2000
 class ConfigError(ValueError):
     """A configuration value is invalid. ``key`` is the dotted name of the field."""
 
-    def __init__(self, key: str, message: str) -> None:
+    def __init__(self, key: str, message: str, also: Sequence[str] = ()) -> None:
         super().__init__(f"{key}: {message}" if key else message)
         self.key = key
         self.message = message
+        self.also = tuple(also)  # other keys the error is about: the one the user set is named
 
 
 # ---------------------------------------------------------------------------- where conf/ is

@@ -378,3 +378,35 @@ def test_cuda_without_cuda_is_one_line_naming_device():
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match=r"^device 'gpu0' is not a torch device"):
         FlockingEnv("s1", num_envs=1, device="gpu0")
+
+
+# ---------------------------------------------------------------------------- 9: where a value came from
+@pytest.mark.parametrize("args, line", [
+    (["experiment.num_envs=10000000"], "experiment.num_envs: the run needs about .* \\(in the command line's "
+                                       "experiment.num_envs=10000000\\)"),
+    (["experiment.swarm_sizes=[0,5]"], "experiment.swarm_sizes\\[0\\]: must be an integer >= 1 and <= 2000, got 0 "
+                                       "\\(in the command line's experiment.swarm_sizes=\\[0,5\\]\\)"),
+    (["+experiment.train_env.bogus=1"], "experiment.train_env: unknown scenario field\\(s\\) \\['bogus'\\] \\(in the "
+                                        "command line's \\+experiment.train_env.bogus=1\\)"),
+    (["scenario=forest", "scenario.random_clearance=1000"], "scenario.random_clearance: 12 circles .* \\(in the "
+                                                            "command line's scenario.random_clearance=1000\\)"),
+])
+def test_a_message_names_the_command_line_when_the_value_came_from_it(tmp_path, args, line):
+    import re
+
+    proc = script("train.py", *TINY, *args, f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    one_line(proc.stderr, "")
+    assert re.fullmatch(f"error: {line}", proc.stderr.strip()), proc.stderr
+    assert "tiny.yaml" not in proc.stderr and "forest.yaml" not in proc.stderr
+
+
+def test_a_message_names_the_file_that_set_the_value(tmp_path):
+    mine = tmp_path / "mine" / "experiment" / "broad.yaml"
+    mine.parent.mkdir(parents=True)
+    mine.write_text((ROOT / "conf" / "experiment" / "tiny.yaml").read_text().replace("swarm_sizes", "x")
+                    + "swarm_sizes: [0, 5]\n")
+    proc = script("train.py", "-cd", str(tmp_path / "mine"), *TINY, "experiment=broad",
+                  f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    one_line(proc.stderr, f"experiment.swarm_sizes[0]: must be an integer >= 1 and <= 2000, got 0 (in {mine})")
