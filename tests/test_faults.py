@@ -410,3 +410,63 @@ def test_a_message_names_the_file_that_set_the_value(tmp_path):
                   f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120)
     assert proc.returncode == 2
     one_line(proc.stderr, f"experiment.swarm_sizes[0]: must be an integer >= 1 and <= 2000, got 0 (in {mine})")
+
+
+# ---------------------------------------------------------------------------- 3: signals while workers start
+def children(pid: int) -> list[int]:
+    """The child processes of ``pid``, whichever of its threads started them."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            found += [int(x) for x in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return found
+
+
+def cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ")
+    except OSError:
+        return ""
+
+
+def alive(pid: int) -> bool:
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
+@pytest.mark.parametrize("signum", [15, 2])
+def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp_path, signum):
+    import signal
+    import time
+
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), *TINY, "experiment.workers=2",
+                             "experiment.max_frames=100000", f"hydra.run.dir={run}"], cwd=tmp_path, env=script_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 240
+    workers: list[int] = []
+    while not workers and proc.poll() is None and time.time() < deadline:
+        workers = [c for c in children(proc.pid) if "spawn_main" in cmdline(c)]
+        time.sleep(0.01)
+    assert workers, "no collector worker started"
+    os.killpg(proc.pid, signum)
+    sent = time.time()
+    try:
+        out, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise AssertionError(f"still running 60 s after {signal.Signals(signum).name}: {proc.communicate()}")
+    took = time.time() - sent
+    assert proc.returncode == 128 + signum, err
+    assert err.strip().splitlines() == [err.strip()] and err.startswith(f"stopped by {signal.Signals(signum).name}"), err
+    assert took < 15, took  # seconds, not the workers' start-up, a batch and a 30 s shutdown
+    time.sleep(1)
+    assert not [w for w in workers if alive(w)]
+    assert not (run / "config.yaml").exists()  # nothing of the run was written yet
