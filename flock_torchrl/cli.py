@@ -402,7 +402,7 @@ class PreRunCheck(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check_sweep(config)
-        _armed()
+        _armed(jobs_elsewhere=_jobs_in_workers(config))
 
     def _check_sweep(self, config: DictConfig) -> None:
         _guard(lambda: _check_launcher(config))
@@ -493,6 +493,8 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         except TrainingInterrupted as exc:
             print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
                   f"resume with: {exc.command}", file=sys.stderr, flush=True)
+            if _in_sweep_worker():  # an exit here would make joblib cancel the jobs still checkpointing
+                return exc.exit_status
             raise SystemExit(exc.exit_status) from None
 
     task.__name__ = app
@@ -526,17 +528,38 @@ def _early_signals() -> None:
         signal.signal(signum, _note)
 
 
-def _armed() -> None:
+# A launcher that runs the jobs in worker processes of this one (joblib): the variable names
+# this process, so that a job knows that its sweep's parent waits for every job.
+SWEEP_PARENT = "FLOCK_TORCHRL_SWEEP_PARENT"
+
+
+def _jobs_in_workers(config: DictConfig) -> bool:
+    """The sweep's launcher runs its jobs in local worker processes (joblib's)."""
+    return "joblib" in str(config.hydra.launcher.get("_target_", "")).lower()
+
+
+def _armed(jobs_elsewhere: bool = False) -> None:
     """The run is checked: stop on a noted signal, and at once on later ones (in the process
-    that started the app; a launcher's worker processes keep their own handlers)."""
+    that started the app; a launcher's worker processes keep their own handlers). With
+    ``jobs_elsewhere`` (a joblib sweep), later signals are only noted: the workers stop their
+    jobs, each with its checkpoint and its resume line, and this process waits for all of them
+    and then exits with 128 + the signal (:func:`main`)."""
     from .run.trainer import STOP_SIGNALS, Stopped
 
     if _MAIN_PID != os.getpid():
         return
     if _NOTED:
         raise Stopped(_NOTED[0])
+    if jobs_elsewhere:
+        os.environ[SWEEP_PARENT] = str(os.getpid())
+        return
     for signum in STOP_SIGNALS:
         signal.signal(signum, _stop)
+
+
+def _in_sweep_worker() -> bool:
+    """This process runs a job for a sweep's parent that waits for every job (joblib)."""
+    return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and _MAIN_PID != os.getpid()
 
 
 def _config_folders(argv: list[str]) -> list[Path]:
@@ -601,7 +624,10 @@ def main(app: str, noted: list[int] | None = None) -> Any:
         _early_signals()
         _NOTED.extend(noted or [])  # after the handlers move here, so none is lost between
         _guard(lambda: check_yaml_files(_config_folders(sys.argv[1:])))
-        return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
+        result = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
+        if _NOTED and os.environ.get(SWEEP_PARENT) == str(os.getpid()):  # a joblib sweep stopped: its jobs said so
+            raise SystemExit(128 + _NOTED[0])
+        return result
     except Stopped as stop:
         print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "
               "written whole or not at all, and the last checkpoint, if any, is kept", file=sys.stderr, flush=True)

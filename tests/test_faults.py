@@ -470,3 +470,34 @@ def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp
     time.sleep(1)
     assert not [w for w in workers if alive(w)]
     assert not (run / "config.yaml").exists()  # nothing of the run was written yet
+
+
+# ---------------------------------------------------------------------------- 10: a joblib sweep stopped
+@pytest.mark.slow
+def test_every_job_of_a_joblib_sweep_stopped_by_sigterm_prints_its_resume_line(tmp_path):
+    import signal
+    import time
+
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/launcher=joblib",
+                             "hydra.launcher.n_jobs=2", *TINY, "experiment.max_frames=100000",
+                             "experiment.checkpoint_every_frames=64", "seed=0,1", f"hydra.sweep.dir={sweep}"],
+                            cwd=tmp_path, env=script_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.time() + 300
+    while len(list(sweep.rglob("last.pt"))) < 2 and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.1)
+    folders = sorted(p.parent for p in sweep.rglob("last.pt"))
+    assert len(folders) == 2, proc.communicate() if proc.poll() is not None else "no checkpoints"
+    os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        out, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise AssertionError(f"the sweep hung: {proc.communicate()}")
+    assert proc.returncode == 143, err
+    lines = [line for line in err.splitlines() if line.startswith("stopped by SIGTERM: checkpoint")]
+    assert sorted(line.split("resume with: ")[1].split(" -cd ")[1].split(" -cn ")[0] for line in lines) == \
+        [str(f) for f in folders], err
+    assert "Traceback" not in err and "leaked" not in err
