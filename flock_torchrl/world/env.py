@@ -382,6 +382,10 @@ class FlockingEnv(EnvBase):
             raise ValueError("env state: expected a mapping with a 'world' entry (what get_state() returns)")
         world = TensorDict(fill_absent(self.cfg, world, self.num_envs, self.device), batch_size=[], device=self.device)
         check_state(self.cfg, world, self.num_envs, "env state")
+        for key in STATE_KEYS:  # a NaN position would give NaN observations and never end the episode
+            value = world.get(key)
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise ValueError(f"env state: {key!r} contains NaN or inf; a world's state must be finite")
         for part in ("episode", "sensed"):  # the metrics accumulator and the sensing cache
             for key, value in reference[part].items(include_nested=True, leaves_only=True):
                 key = (part, *key) if isinstance(key, tuple) else (part, key)

@@ -90,8 +90,8 @@ def fill_absent(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int,
 
 def check_state(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int, what: str,
                 keys: tuple[str, ...] = STATE_KEYS) -> None:
-    """Raise a ``ValueError`` naming the key unless every ``keys`` entry of ``state`` is a finite
-    tensor of the declared shape (for ``batch`` worlds) and dtype."""
+    """Raise a ``ValueError`` naming the key unless every ``keys`` entry of ``state`` is a tensor
+    of the declared shape (for ``batch`` worlds) and dtype."""
     shapes = state_shapes(cfg, batch)
     for key in keys:
         value, dtype = state.get(key, None), WORLD_STATE[key].dtype
@@ -102,8 +102,6 @@ def check_state(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int, what:
             raise ValueError(f"{what}: {key!r} has shape {list(value.shape)}, expected {list(shapes[key])}")
         if value.dtype != dtype:
             raise ValueError(f"{what}: {key!r} has dtype {value.dtype}, expected {dtype}")
-        if value.is_floating_point() and not bool(torch.isfinite(value).all()):
-            raise ValueError(f"{what}: {key!r} contains NaN or inf; a world's state must be finite")
 
 
 __all__ = ["STATE_KEYS", "StateField", "WORLD_STATE", "check_state", "empty_state", "fill_absent", "state_shapes",
