@@ -486,6 +486,11 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         from .run.trainer import TrainingInterrupted
 
         out = Path(HydraConfig.get().runtime.output_dir)
+        stopped = int(os.environ.get(STOPPED_WORKER, "0") or 0)
+        if stopped and _in_sweep_worker():  # joblib hands out the jobs it holds: they do not start
+            print(f"not started: {out} (the sweep was stopped by {signal.Signals(stopped).name})", file=sys.stderr,
+                  flush=True)
+            return 128 + stopped
         obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
         _armed()  # also where no PreRunCheck ran (a config without the callback)
         try:
@@ -494,6 +499,7 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
             print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
                   f"resume with: {exc.command}", file=sys.stderr, flush=True)
             if _in_sweep_worker():  # an exit here would make joblib cancel the jobs still checkpointing
+                os.environ[STOPPED_WORKER] = str(int(exc.signum))
                 return exc.exit_status
             raise SystemExit(exc.exit_status) from None
 
@@ -508,6 +514,9 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
 # at once (an evaluation or a table can take minutes; the trainer installs its own handlers).
 _NOTED: list[int] = []
 _MAIN_PID = 0  # the process that called main(); a launcher's workers keep their own handlers
+# Set in a joblib worker whose job a signal stopped: its later jobs do not start. (An environment
+# variable, not a global: the launcher pickles the task by value, with a copy of its globals.)
+STOPPED_WORKER = "FLOCK_TORCHRL_SWEEP_STOPPED"
 
 
 def _note(signum: int, frame: Any) -> None:

@@ -474,7 +474,7 @@ def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp
 
 # ---------------------------------------------------------------------------- 10: a joblib sweep stopped
 @pytest.mark.slow
-def test_every_job_of_a_joblib_sweep_stopped_by_sigterm_prints_its_resume_line(tmp_path):
+def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_jobs_do_not_start(tmp_path):
     import signal
     import time
 
@@ -482,7 +482,7 @@ def test_every_job_of_a_joblib_sweep_stopped_by_sigterm_prints_its_resume_line(t
     sweep = tmp_path / "sweep"
     proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/launcher=joblib",
                              "hydra.launcher.n_jobs=2", *TINY, "experiment.max_frames=100000",
-                             "experiment.checkpoint_every_frames=64", "seed=0,1", f"hydra.sweep.dir={sweep}"],
+                             "experiment.checkpoint_every_frames=64", "seed=0,1,2", f"hydra.sweep.dir={sweep}"],
                             cwd=tmp_path, env=script_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     deadline = time.time() + 300
@@ -501,3 +501,7 @@ def test_every_job_of_a_joblib_sweep_stopped_by_sigterm_prints_its_resume_line(t
     assert sorted(line.split("resume with: ")[1].split(" -cd ")[1].split(" -cn ")[0] for line in lines) == \
         [str(f) for f in folders], err
     assert "Traceback" not in err and "leaked" not in err
+    # The job joblib held back does not start after the signal.
+    (held,) = [line for line in err.splitlines() if line.startswith("not started: ")]
+    assert "seed2" in held and held.endswith("(the sweep was stopped by SIGTERM)")
+    assert not list(sweep.rglob("seed2*/last.pt"))
