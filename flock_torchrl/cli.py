@@ -579,7 +579,7 @@ def _config_folders(argv: list[str]) -> list[Path]:
 
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
-    parser = argparse.ArgumentParser(add_help=False)
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     parser.add_argument("--config-dir", "-cd")
     known, rest = parser.parse_known_args(argv)
     folders = [Path(known.config_dir)] if known.config_dir else []
