@@ -99,8 +99,8 @@ def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_pa
                   preexec=limit_memory(gib) if gib else None)
     assert proc.returncode == 2, proc.stderr[-3000:]
     one_line(proc.stderr, key)
-    if gib:
-        assert f"its ulimit -v of {gib:.1f} GiB" in proc.stderr
+    if gib:  # the limit is the bound, unless the machine has even less free
+        assert f"its ulimit -v of {gib:.1f} GiB" in proc.stderr or "what this machine has free" in proc.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -115,11 +115,11 @@ def test_check_memory_names_the_costliest_key_and_the_bound():
 
 
 def test_usable_memory_sees_the_processs_own_limit():
-    code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (6 * 2**30, 6 * 2**30)); "
+    code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30)); "
             "from flock_torchrl.run.memory import usable_memory; u = usable_memory(); print(u.bytes, u.what)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=60)
-    used, what = int(out.stdout.split()[0]), out.stdout.split(" ", 1)[1]
-    assert what.startswith("its ulimit -v of 6.0 GiB") and 0 < used < 6 * 2**30, out
+    left, what = int(out.stdout.split()[0]), out.stdout.split(" ", 1)[1]
+    assert what.startswith("its ulimit -v of 3.0 GiB") and 0 < left < 3 * 2**30, out
 
 
 @pytest.mark.parametrize("scenario, n, worlds", [("s1", 5, 4000), ("s2", 100, 400)])
