@@ -118,10 +118,12 @@ def _evaluate_handles(cfg: EvaluateConfig) -> list:
 
 
 def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
+    from .run.memory import check_episodes_memory
     from .run.rollout import try_contender
     from .world.spawn import check_spawn_feasible
 
     check_spawn_feasible(cfg.scenario)
+    check_episodes_memory(cfg.scenario, cfg.episodes)
     handles = _evaluate_handles(cfg)
     if cfg.contender is not None:  # tried on a small batch now: a bad one is one line before any episode
         try_contender(handles[0], cfg.scenario, None, cfg.device, key="contender")
@@ -155,7 +157,9 @@ def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
 # -- reproduce, figures, scaling
 def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
+    from .run.memory import check_episodes_memory
 
+    check_episodes_memory(cfg.scenario, cfg.episodes)
     check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only,
                        recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to)
 
@@ -189,7 +193,9 @@ def _run_figures(cfg: FiguresConfig, out: Path) -> None:
 
 def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
     from .policies.registry import resolve
+    from .run.memory import check_episodes_memory
 
+    check_episodes_memory(dataclasses.replace(cfg.scenario, n_uavs=max(cfg.sizes)), cfg.episodes)
     for policy in (cfg.policy_name, *cfg.others):
         resolve(policy, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device)
 
@@ -263,36 +269,103 @@ def _task_yaml(cfg: DictConfig) -> str:
     return OmegaConf.to_yaml(task, resolve=True)
 
 
-def checked(app: str, cfg: DictConfig, out: Path) -> Schema:
-    """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error)."""
+def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") -> Schema:
+    """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error); ``key``:
+    the setting that chose ``out``."""
     obj = APPS[app].schema.from_config(cfg)
+    check_writable(out, key)
     APPS[app].prepare(obj, out)
     return obj
+
+
+def check_writable(folder: Path, key: str) -> None:
+    """Refuse an output folder that cannot be made or written, before Hydra creates it: a file
+    tried in its nearest existing folder (and removed at once) must be writable."""
+    import tempfile
+
+    from .io import write_failure
+
+    probe = Path(folder).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(key, f"{folder} cannot be made: {probe} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as exc:
+        why = (write_failure(OSError(exc.errno, exc.strerror, str(probe))) or
+               f"cannot write {probe}: {exc.strerror}")
+        raise ConfigError(key, f"{folder} cannot be written ({why})") from None
 
 
 def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
     """Run ``fn``; report this project's errors as one line with exit status 2 (a config error
     also names the file its group's choice came from, when that is a file)."""
+    from .io import write_failure
+
     try:
         return fn()
     except _errors() as exc:
-        source = _source_of(config, getattr(exc, "key", "")) if config is not None else None
-        fail(f"{exc} (in {source})" if source else exc)
+        if config is None or not getattr(exc, "key", ""):
+            fail(exc)
+        key, source = _blame(config, exc.key, getattr(exc, "also", ()))
+        message = f"{key}: {exc.message}" if key != exc.key else str(exc)
+        fail(f"{message} (in {source})" if source else message)
+    except OSError as exc:  # a full disk, a file-size limit, a folder that cannot be written
+        if write_failure(exc) is None:
+            raise
+        fail(f"{write_failure(exc)}; files are written whole or not at all, nothing half-written was left")
+
+
+def _covers(a: str, b: str) -> bool:
+    """Dotted keys ``a`` and ``b`` are the same, or one holds the other (``x.y`` and ``x.y[0]``, ``x.y.z``)."""
+    return a == b or any(b.startswith(a + sep) or a.startswith(b + sep) for sep in ".[")
+
+
+def _blame(config: DictConfig, key: str, also: tuple[str, ...] = ()) -> tuple[str, str | None]:
+    """The key to name for an error about ``key`` (or, when the user set one of them on the
+    command line, one of ``also``) and where its value came from: the command line's override,
+    the YAML file of its group that sets it, or ``None`` (a default, or not known)."""
+    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
+    if hydra is None:
+        return key, None
+    choices = set(hydra.runtime.choices)
+    for candidate in (key, *also):
+        for override in hydra.overrides.task:
+            name = str(override).lstrip("+~").split("=")[0]
+            if name == candidate or (name not in choices and _covers(name, candidate)):  # not a group's choice
+                return candidate, f"the command line's {override}"
+    return key, _source_of(config, key)
+
+
+def _sets(text: str, path: list[str]) -> bool:
+    """The YAML ``text`` sets the nested key ``path``."""
+    import yaml
+
+    try:
+        node: Any = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    for part in path:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
 
 
 def _source_of(config: DictConfig, key: str) -> str | None:
     """The YAML file behind the group a dotted ``key`` belongs to (``scenario.n_uavs`` ->
-    ``.../scenario/corridor.yaml``), from the composed config's own record of its choices and
-    search path; ``None`` when it is not a file."""
+    ``.../scenario/corridor.yaml``) when that file sets it, from the composed config's own
+    record of its choices and search path; ``None`` when it is not a file."""
+    import re
     from importlib.resources import files
 
     group = (key or "").split(".")[0]
     hydra = config.get("hydra") if isinstance(config, DictConfig) else None
     if not group or hydra is None:
         return None
-    for override in hydra.overrides.task:
-        if str(override).lstrip("+~").split("=")[0] == key:
-            return f"the command line's {override}"
+    inner = [p for p in re.sub(r"\[\d+\]", "", key).split(".")[1:] if p]
     choice = hydra.runtime.choices.get(group)
     if not choice:
         return None
@@ -302,11 +375,11 @@ def _source_of(config: DictConfig, key: str) -> str | None:
             if schema == "file":
                 candidate = Path(path) / group / f"{choice}.yaml"
                 if candidate.is_file():
-                    return str(candidate)
+                    return str(candidate) if _sets(candidate.read_text(), inner) else None
             elif schema == "pkg":
                 candidate = files(path) / group / f"{choice}.yaml"
                 if candidate.is_file():
-                    return f"pkg://{path}/{group}/{choice}.yaml"
+                    return f"pkg://{path}/{group}/{choice}.yaml" if _sets(candidate.read_text(), inner) else None
         except (ModuleNotFoundError, TypeError, ValueError):
             continue
     return None
@@ -321,13 +394,15 @@ class PreRunCheck(Callback):
         self.app = app
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if self.app == "train":
+            _guard(lambda: _check_resume_folder(config))
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
         _armed()
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check_sweep(config)
-        _armed()
+        _armed(jobs_elsewhere=_jobs_in_workers(config))
 
     def _check_sweep(self, config: DictConfig) -> None:
         _guard(lambda: _check_launcher(config))
@@ -341,7 +416,24 @@ class PreRunCheck(Callback):
         for overrides in jobs:
             job = loader.load_sweep_config(config, list(overrides))
             out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
-            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out), job)
+            _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out, "hydra.sweep.dir"), job)
+
+
+def _check_resume_folder(config: DictConfig) -> None:
+    """A ``resume.yaml`` written before run folders could move names its folder by its absolute
+    path: read from a copy or a moved folder, it would continue (or miss) the original."""
+    from .config import config_folder
+    from .run.run_folder import RESUME_CONFIG
+
+    if str(config.hydra.job.config_name) != RESUME_CONFIG:
+        return
+    folder = Path(config_folder(config.hydra.runtime.config_sources, RESUME_CONFIG))
+    out = Path(str(config.hydra.run.dir)).resolve()
+    chosen = any(str(o).startswith("hydra.run.dir=") for o in config.hydra.overrides.hydra)
+    if out != folder and not chosen:
+        raise ConfigError("hydra.run.dir", f"{folder / (RESUME_CONFIG + '.yaml')} names another run folder, {out} "
+                                           f"(it was copied or moved); pass hydra.run.dir={folder} to continue "
+                                           "this one (nothing was changed)")
 
 
 def sweep_jobs(config: DictConfig) -> list[list[str]] | None:
@@ -438,6 +530,11 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         from .run.trainer import TrainingInterrupted
 
         out = Path(HydraConfig.get().runtime.output_dir)
+        stopped = int(os.environ.get(STOPPED_WORKER, "0") or 0)
+        if stopped and _in_sweep_worker():  # joblib hands out the jobs it holds: they do not start
+            print(f"not started: {out} (the sweep was stopped by {signal.Signals(stopped).name})", file=sys.stderr,
+                  flush=True)
+            return 128 + stopped
         obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
         _armed()  # also where no PreRunCheck ran (a config without the callback)
         try:
@@ -445,6 +542,9 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         except TrainingInterrupted as exc:
             print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
                   f"resume with: {exc.command}", file=sys.stderr, flush=True)
+            if _in_sweep_worker():  # an exit here would make joblib cancel the jobs still checkpointing
+                os.environ[STOPPED_WORKER] = str(int(exc.signum))
+                return exc.exit_status
             raise SystemExit(exc.exit_status) from None
 
     task.__name__ = app
@@ -458,6 +558,9 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
 # at once (an evaluation or a table can take minutes; the trainer installs its own handlers).
 _NOTED: list[int] = []
 _MAIN_PID = 0  # the process that called main(); a launcher's workers keep their own handlers
+# Set in a joblib worker whose job a signal stopped: its later jobs do not start. (An environment
+# variable, not a global: the launcher pickles the task by value, with a copy of its globals.)
+STOPPED_WORKER = "FLOCK_TORCHRL_SWEEP_STOPPED"
 
 
 def _note(signum: int, frame: Any) -> None:
@@ -478,17 +581,86 @@ def _early_signals() -> None:
         signal.signal(signum, _note)
 
 
-def _armed() -> None:
+# A launcher that runs the jobs in worker processes of this one (joblib): the variable names
+# this process, so that a job knows that its sweep's parent waits for every job.
+SWEEP_PARENT = "FLOCK_TORCHRL_SWEEP_PARENT"
+
+
+def _jobs_in_workers(config: DictConfig) -> bool:
+    """The sweep's launcher runs its jobs in local worker processes (joblib's)."""
+    return "joblib" in str(config.hydra.launcher.get("_target_", "")).lower()
+
+
+def _armed(jobs_elsewhere: bool = False) -> None:
     """The run is checked: stop on a noted signal, and at once on later ones (in the process
-    that started the app; a launcher's worker processes keep their own handlers)."""
+    that started the app; a launcher's worker processes keep their own handlers). With
+    ``jobs_elsewhere`` (a joblib sweep), later signals are only noted: the workers stop their
+    jobs, each with its checkpoint and its resume line, and this process waits for all of them
+    and then exits with 128 + the signal (:func:`main`)."""
     from .run.trainer import STOP_SIGNALS, Stopped
 
     if _MAIN_PID != os.getpid():
         return
     if _NOTED:
         raise Stopped(_NOTED[0])
+    if jobs_elsewhere:
+        os.environ[SWEEP_PARENT] = str(os.getpid())
+        return
     for signum in STOP_SIGNALS:
         signal.signal(signum, _stop)
+
+
+def _in_sweep_worker() -> bool:
+    """This process runs a job for a sweep's parent that waits for every job (joblib)."""
+    return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and _MAIN_PID != os.getpid()
+
+
+def _config_folders(argv: list[str]) -> list[Path]:
+    """The folders a command line adds to Hydra's search path: ``--config-dir`` / ``-cd`` and the
+    ``file://`` (or plain) entries of ``hydra.searchpath=[...]`` (parsed by Hydra's public
+    override parser)."""
+    import argparse
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--config-dir", "-cd")
+    known, rest = parser.parse_known_args(argv)
+    folders = [Path(known.config_dir)] if known.config_dir else []
+    for arg in rest:
+        if arg.lstrip("+~").startswith("hydra.searchpath="):
+            try:
+                value = OverridesParser.create().parse_overrides([arg])[0].value()
+            except Exception:  # Hydra names a malformed override itself
+                continue
+            for entry in value if isinstance(value, list) else [value]:
+                entry = str(entry)
+                if entry.startswith("file://") or "://" not in entry:
+                    folders.append(Path(entry.removeprefix("file://")))
+    return folders
+
+
+def check_yaml_files(folders: list[Path], depth: int = 4) -> None:
+    """Refuse a YAML file that does not parse in a folder the command line adds to the search
+    path (Hydra would fail on it with a long ``yaml.parser`` traceback), naming the file and
+    the line."""
+    import yaml
+
+    for folder in folders:
+        if not folder.is_dir():
+            continue
+        for path in sorted(folder.rglob("*.yaml")):
+            parts = path.relative_to(folder).parts
+            if len(parts) > depth or any(p.startswith(".") for p in parts[:-1]):
+                continue
+            try:
+                yaml.safe_load(path.read_text())
+            except yaml.YAMLError as exc:
+                mark = getattr(exc, "problem_mark", None)
+                where = f" (line {mark.line + 1}, column {mark.column + 1}: {exc.problem})" if mark else ""
+                raise AppError(f"{path} is not valid YAML{where}") from None
+            except (OSError, UnicodeDecodeError) as exc:
+                raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
 
 
 def main(app: str, noted: list[int] | None = None) -> Any:
@@ -504,7 +676,11 @@ def main(app: str, noted: list[int] | None = None) -> Any:
     try:
         _early_signals()
         _NOTED.extend(noted or [])  # after the handlers move here, so none is lost between
-        return hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
+        _guard(lambda: check_yaml_files(_config_folders(sys.argv[1:])))
+        result = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
+        if _NOTED and os.environ.get(SWEEP_PARENT) == str(os.getpid()):  # a joblib sweep stopped: its jobs said so
+            raise SystemExit(128 + _NOTED[0])
+        return result
     except Stopped as stop:
         print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "
               "written whole or not at all, and the last checkpoint, if any, is kept", file=sys.stderr, flush=True)

@@ -35,13 +35,18 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 
+# The largest swarm any config may ask for (scenario.n_uavs, experiment.swarm_sizes, sizes).
+MAX_UAVS = 2000
+
+
 class ConfigError(ValueError):
     """A configuration value is invalid. ``key`` is the dotted name of the field."""
 
-    def __init__(self, key: str, message: str) -> None:
+    def __init__(self, key: str, message: str, also: Sequence[str] = ()) -> None:
         super().__init__(f"{key}: {message}" if key else message)
         self.key = key
         self.message = message
+        self.also = tuple(also)  # other keys the error is about: the one the user set is named
 
 
 # ---------------------------------------------------------------------------- where conf/ is
@@ -109,6 +114,17 @@ def selection_dir(overrides: Any = "") -> str:
     return "/" + name
 
 
+def config_folder(sources: Any, config_name: Any) -> str:
+    """The folder Hydra read the primary config ``<config_name>.yaml`` from: the first ``file``
+    source of ``hydra.runtime.config_sources`` that holds it. A run's ``resume.yaml`` sets its
+    output folder to this, so a copied or moved run folder continues where it stands now."""
+    for source in sources or ():
+        path = Path(str(source["path"]))
+        if str(source["schema"]) == "file" and (path / f"{config_name}.yaml").is_file():
+            return str(path.resolve())
+    raise ConfigError("hydra.run.dir", f"no folder of the config search path holds {config_name}.yaml")
+
+
 def _register_resolvers() -> None:
     # ``${pi:0.5}`` = 0.5 pi: angles written as the paper writes them.
     if not OmegaConf.has_resolver("pi"):
@@ -127,6 +143,10 @@ def _register_resolvers() -> None:
     # ``${flock.concat:[a,b],${some_list}}``: lists joined (one list written once, used twice).
     if not OmegaConf.has_resolver("flock.concat"):
         OmegaConf.register_new_resolver("flock.concat", lambda *lists: [x for items in lists for x in items])
+    # ``${flock.config_folder:${hydra.runtime.config_sources},${hydra.job.config_name}}``: where
+    # the primary config was read (a run folder's resume.yaml is its own output folder).
+    if not OmegaConf.has_resolver("flock.config_folder"):
+        OmegaConf.register_new_resolver("flock.config_folder", config_folder)
 
 
 _register_resolvers()
@@ -373,7 +393,7 @@ class ScenarioConfig(Schema):
         choice(k("reading"), self.reading, READINGS)
         # Bounds keep a config from asking for more than any machine holds (the world's
         # [B, N, N] pairwise terms, the episode loop): far above every use, well below overflow.
-        count(k("n_uavs"), self.n_uavs, 1, 2000)
+        count(k("n_uavs"), self.n_uavs, 1, MAX_UAVS)
         count(k("max_steps"), self.max_steps, 1, 10**7)
         count(k("n_beams"), self.n_beams, 1, 3600)
         for name in ("n_scan", "n_cam"):
@@ -667,7 +687,7 @@ class ExperimentConfig(Schema):
         if self.swarm_sizes:
             key = _key(p, "swarm_sizes")
             for i, n in enumerate(self.swarm_sizes):
-                count(f"{key}[{i}]", n, 1, 10**5)
+                count(f"{key}[{i}]", n, 1, MAX_UAVS)  # the bound of scenario.n_uavs
             if len(set(self.swarm_sizes)) != len(self.swarm_sizes):
                 _fail(key, f"sizes repeat: {list(self.swarm_sizes)}")
             if self.num_envs % len(self.swarm_sizes):
@@ -979,7 +999,7 @@ class ScalingConfig(WorldApp):
         if not self.sizes:
             _fail("sizes", "a list of swarm sizes, got []")
         for n in self.sizes:
-            count("sizes", n, 1, 2000)
+            count("sizes", n, 1, MAX_UAVS)
         _check_run(self)
         return self._mark_checked()
 

@@ -9,6 +9,7 @@ figures all go through it.
 from __future__ import annotations
 
 import csv
+import errno
 import gzip
 import io
 import math
@@ -18,12 +19,39 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 
+# Errors of writing a file that are the disk's or the user's, not the program's: reported in one
+# line naming the file (:func:`write_failure`).
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS})
+_REASONS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "the disk quota is exceeded",
+            errno.EFBIG: "it would pass this process's file-size limit (ulimit -f)",
+            errno.EACCES: "permission denied", errno.EPERM: "permission denied",
+            errno.EROFS: "the file system is read-only"}
+
+
+def write_failure(exc: BaseException) -> str | None:
+    """``cannot write <file>: <why>`` for an :class:`OSError` of :data:`WRITE_ERRNOS`, else ``None``."""
+    if not isinstance(exc, OSError) or exc.errno not in WRITE_ERRNOS:
+        return None
+    if not exc.filename:  # not a file of this project's (shared memory, a library's temporary file)
+        return f"a write failed: {_REASONS[exc.errno]}"
+    return f"cannot write {exc.filename}: {_REASONS[exc.errno]}"
+
+
 def atomic_write(path: str | os.PathLike, write: Callable[[str], None]) -> Path:
     """Call ``write(tmp_path)``, fsync the file, then ``os.replace`` it onto ``path``.
 
-    The temporary file is removed if anything fails; the target is then untouched.
+    The temporary file is removed if anything fails; the target is then untouched. An
+    :class:`OSError` of :data:`WRITE_ERRNOS` names ``path`` (not the temporary file).
     """
-    path = Path(path)
+    try:
+        return _atomic_write(Path(path), write)
+    except OSError as exc:
+        if exc.errno in WRITE_ERRNOS and exc.filename != str(path):
+            raise OSError(exc.errno, exc.strerror, str(path)) from None
+        raise
+
+
+def _atomic_write(path: Path, write: Callable[[str], None]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
@@ -90,4 +118,4 @@ def save_torch(obj: Any, path: str | os.PathLike) -> Path:
     return atomic_write(path, lambda tmp: torch.save(obj, tmp))
 
 
-__all__ = ["atomic_write", "csv_text", "csv_value", "save_torch", "write_bytes", "write_csv", "write_text"]
+__all__ = ["WRITE_ERRNOS", "atomic_write", "csv_text", "csv_value", "save_torch", "write_bytes", "write_csv", "write_failure", "write_text"]

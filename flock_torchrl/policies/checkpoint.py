@@ -30,6 +30,7 @@ from tensordict.nn import TensorDictModuleBase
 
 from ..config import ScenarioConfig, saved_scenario
 from ..io import write_bytes
+from ..world.sensors import observation_size
 from .models import ACTION, OBS, make_actor
 
 FORMAT_VERSION = 2
@@ -101,6 +102,9 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     data = payload_bytes.numpy().tobytes()
     if hashlib.sha256(data).hexdigest() != envelope.get("sha256"):
         raise CheckpointError(f"{path} is corrupted: its payload does not match its SHA-256 digest")
+    if envelope.get("kind") not in KINDS:
+        raise CheckpointError(f"{path}: kind {envelope.get('kind')!r} is not a checkpoint kind "
+                              f"({', '.join(KINDS)}); it was not written by flock_torchrl")
     if kind is not None and envelope.get("kind") != kind:
         what = {"training": "a full training state (resume)", "policy": "a slim shipped policy"}
         raise CheckpointError(f"{path} is {what.get(envelope.get('kind'), repr(envelope.get('kind')))}, but "
@@ -113,8 +117,39 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     if missing:
         raise CheckpointError(f"{path} is a {envelope.get('kind')} checkpoint without {', '.join(missing)}: it "
                               "cannot be used (written by something else than flock_torchrl's trainer?)")
+    check_policy_fields(payload, path)
     payload["kind"] = envelope["kind"]
     return payload
+
+
+# The metadata a policy is rebuilt from (:class:`SharedPolicy`), with the types it must have.
+META_FIELDS = {"policy": str, "policy_id": str, "reading": str, "scenario": dict, "policy_scenario": dict,
+               "stochastic": bool, "hidden": int, "depth": int}
+
+
+def check_policy_fields(payload: dict[str, Any], path: str | os.PathLike) -> None:
+    """Refuse, naming the field, a digest-valid checkpoint whose metadata or actor weights are
+    wrong: a missing or mistyped ``meta`` field, a reading this version does not know, actor
+    weights that are not tensors or are not finite."""
+    from ..config import READINGS
+
+    meta = payload.get("meta")
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path}: meta is {type(meta).__name__}, not a dict")
+    for name, kind in META_FIELDS.items():
+        value = meta.get(name)
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)) or (kind is int and value < 1):
+            raise CheckpointError(f"{path}: meta.{name} is {value!r}, not a valid {kind.__name__}")
+    if meta["reading"] not in READINGS:
+        raise CheckpointError(f"{path}: meta.reading is {meta['reading']!r}, not one of {', '.join(READINGS)}")
+    actor = payload.get("actor")
+    if not isinstance(actor, dict) or not actor:
+        raise CheckpointError(f"{path}: actor is {type(actor).__name__}, not a dict of weights")
+    for name, value in actor.items():
+        if not isinstance(value, torch.Tensor):
+            raise CheckpointError(f"{path}: actor.{name} is {type(value).__name__}, not a tensor")
+        if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            raise CheckpointError(f"{path}: actor.{name} holds NaN or infinite weights")
 
 
 def _version_hint(found: object) -> str:
@@ -152,15 +187,29 @@ class SharedPolicy(TensorDictModuleBase):
     in, and the scenario fields it sets (``policy_scenario``).
     """
 
-    def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device = "cpu") -> None:
+    def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device = "cpu",
+                 origin: str = "the checkpoint") -> None:
         super().__init__()
         from ..world.env import FlockingEnv
 
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
         self.flock_meta = meta
-        env = FlockingEnv(ScenarioConfig(**saved_scenario(meta["scenario"])), num_envs=1, device=device, seed=None)
+        try:
+            scenario = ScenarioConfig(**saved_scenario(meta["scenario"]))
+            env = FlockingEnv(scenario, num_envs=1, device=device, seed=None)
+        except (TypeError, ValueError) as exc:
+            raise CheckpointError(f"{origin}: meta.scenario cannot build its world ({' '.join(str(exc).split())})"
+                                  ) from None
         self.actor = make_actor(env, stochastic=meta["stochastic"], hidden=meta["hidden"], depth=meta["depth"])
+        expected = self.actor.state_dict()
+        for name in sorted(set(expected) | set(actor_state)):
+            want, got = expected.get(name), actor_state.get(name)
+            if want is None or got is None or tuple(want.shape) != tuple(got.shape):
+                shape = lambda t: "absent" if t is None else list(t.shape)  # noqa: E731
+                raise CheckpointError(f"{origin}: actor.{name} is {shape(got)}, but the network its meta describes "
+                                      f"(obs {observation_size(scenario)}, hidden {meta['hidden']}, depth "
+                                      f"{meta['depth']}) needs {shape(want)}")
         self.actor.load_state_dict(actor_state)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -176,7 +225,7 @@ def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu") -> 
                           policy_id=policy.flock_meta["policy_id"])
     """
     payload = load_checkpoint(path)
-    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device)
+    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device, origin=str(resolve_path(path)))
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",

@@ -100,7 +100,7 @@ def checkpoint_handle(path: str | os.PathLike, device: str = "cpu") -> PolicyHan
     """The policy a checkpoint holds (slim or training)."""
     payload = load_checkpoint(path)
     meta = dict(payload["meta"])
-    module = SharedPolicy(payload["actor"], meta, device=device)
+    module = SharedPolicy(payload["actor"], meta, device=device, origin=str(resolve_path(path)))
     return PolicyHandle(
         id=meta["policy_id"], name=meta["policy"], kind="learned", reading=meta["reading"],
         scenario=dict(meta["policy_scenario"]), extras=(), origin=str(resolve_path(path)),

@@ -28,6 +28,9 @@ from ..io import write_text
 from ..policies.checkpoint import CheckpointError
 
 RESUME_CONFIG = "resume"
+# resume.yaml's output folder: the folder it is read from (a copy continues the copy, a moved
+# run continues where it stands; the folder it was written in is never touched).
+RUN_FOLDER = "${flock.config_folder:${hydra.runtime.config_sources},${hydra.job.config_name}}"
 
 
 class RunLock:
@@ -73,25 +76,41 @@ def clean_stale_temporaries(run_dir: Path) -> list[Path]:
     return removed
 
 
-def truncate_log(path: Path, keep: Callable[[list[str]], bool], header: bool = True) -> None:
-    """Keep the rows of a CSV log for which ``keep(row)`` is true (atomically). A row that
-    cannot be read (a torn last line after a crash or a full disk) is dropped."""
+def truncate_log(path: Path, keep: Callable[[list[str]], bool], header: bool = True, width: int | None = None,
+                 columns: Sequence[str] | None = None) -> None:
+    """Keep the rows of a CSV log for which ``keep(row)`` is true (atomically), whatever a dead
+    process left: a row that cannot be read (a torn last line without its newline, bytes that
+    are not UTF-8, the wrong number of fields) is dropped, and a header other than ``columns``
+    is written again, so that the next row starts on a line of its own."""
     if not path.is_file():
         return
-    with path.open(newline="") as handle:
-        rows = list(csv.reader(handle))
+    text = path.read_bytes().decode("utf-8", errors="replace")  # a bad byte becomes U+FFFD: its row goes
+    lines = text.split("\n")
+    torn = lines.pop() != ""  # the text after the last newline: a row whose write did not finish
+    rows = list(csv.reader(lines))
     head, body = (rows[:1], rows[1:]) if header else ([], rows)
-    width = len(head[0]) if head else None
+    if columns is not None and head != [list(columns)]:
+        head = [list(columns)]
+    width = len(head[0]) if head else width
 
     def good(row: list[str]) -> bool:
         try:
-            return bool(row) and (width is None or len(row) == width) and keep(row)
+            return (bool(row) and (width is None or len(row) == width) and not any("\ufffd" in x for x in row)
+                    and keep(row))
         except (ValueError, IndexError):
             return False
 
     kept = [r for r in body if good(r)]
-    if len(kept) != len(body):
+    if torn or len(kept) != len(body) or (header and rows[:1] != head):
         write_text(path, "".join(",".join(r) + "\n" for r in head + kept))
+
+
+def _numbers(fields: Sequence[str]) -> bool:
+    """Every field is a number or empty (``ValueError`` otherwise: the row is dropped)."""
+    for x in fields:
+        if x:
+            float(x)
+    return True
 
 
 class EpisodeLog:
@@ -103,7 +122,7 @@ class EpisodeLog:
         if keep_up_to is None or not path.is_file():
             write_text(path, ",".join(self.columns) + "\n")
         else:
-            truncate_log(path, lambda r: int(r[0]) <= keep_up_to)
+            truncate_log(path, lambda r: int(r[0]) <= keep_up_to and _numbers(r[1:]), columns=self.columns)
         self.handle = path.open("a", newline="")
         self.writer = csv.writer(self.handle, lineterminator="\n")
 
@@ -122,10 +141,15 @@ class EpisodeLog:
         self.handle.close()
 
 
-def truncate_scalar_logs(run_dir: Path, frames: int) -> None:
-    """Cut the CSV logger's files back to the checkpoint's step (a resume rewrites the rest)."""
+def truncate_scalar_logs(run_dir: Path, frames: int | None) -> None:
+    """Cut the CSV logger's files (``step,value`` rows) back to the checkpoint's step (a resume
+    rewrites the rest); ``None``: a fresh run in a folder a run died in before its first
+    checkpoint, whose files are removed (the new run writes them again)."""
     for path in (run_dir / "logs" / "scalars").glob("**/*.csv"):
-        truncate_log(path, lambda r: float(r[0]) <= frames, header=False)
+        if frames is None:
+            path.unlink()
+        else:
+            truncate_log(path, lambda r: float(r[0]) <= frames and _numbers(r[1:]), header=False, width=2)
 
 
 def logger_hparams(resolved: dict[str, Any]) -> dict[str, Any]:
@@ -168,11 +192,11 @@ def resume_command(run_dir: Path) -> str:
 
 def write_run_config(run_dir: Path, resolved: dict[str, Any], hydra: dict[str, Any]) -> None:
     """``config.yaml`` (what runs, resolved) and ``resume.yaml`` (the same as a primary config of
-    its own, with its Hydra settings and this folder as the output folder)."""
+    its own, with its Hydra settings and, as its output folder, the folder it is read from)."""
     write_text(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(resolved)))
     resume = {"defaults": ["train_schema", {"override hydra/job_logging": "stdout"}, "_self_"],
               **{k: v for k, v in resolved.items()}, "resume": "true",
-              "hydra": {**hydra, "run": {"dir": str(run_dir.resolve())}}}
+              "hydra": {**hydra, "run": {"dir": RUN_FOLDER}}}
     text = OmegaConf.to_yaml(OmegaConf.create(resume))
     write_text(run_dir / f"{RESUME_CONFIG}.yaml",
                f"# Continue this run (only budgets, logging and runtime options may change):\n"

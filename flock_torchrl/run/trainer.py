@@ -43,15 +43,18 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
 
 from ..config import POLICY_SCENARIO_FIELDS, ConfigError, TrainConfig, compose, flatten, saved_scenario
+from ..io import write_failure
 from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint
 from ..policies.learners import make_learner
 from ..world.env import FlockingEnv
 from ..world.metrics import CELL_METRICS
 from ..world.sensors import observation_size, state_size
 from ..world.spawn import check_spawn_feasible
+from .memory import check_memory, train_bytes
 from .run_folder import (EpisodeLog, RunLock, clean_stale_temporaries, logger_hparams, make_logger, resume_command,
                          truncate_scalar_logs, write_run_config)
 from .schedule import Schedule, evaluated_at_end
+from .workers import start_workers
 
 # One row per finished training episode (Fig. 4 reads episode, reward).
 EPISODE_COLUMNS = ("episode", "frames", "reward", "success", "safe_success", *CELL_METRICS, "steps")
@@ -126,27 +129,9 @@ def config_differences(saved: Any, requested: Any, allowed: Sequence[str]) -> li
 
 
 # ---------------------------------------------------------------------------- before anything runs
-def available_memory() -> int | None:
-    """Bytes of memory this machine can still give (``None`` where the OS does not say)."""
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def memory_estimate(cfg: TrainConfig) -> dict[str, int]:
-    """Bytes the run will hold, by part: the replay buffer (swarm transitions of every key the
-    learner stores) and the worlds (the env state and one step's pairwise ``[B, N, N]`` terms)."""
-    s, n, b = cfg.scenario, max(t.n_uavs for t in cfg.train_scenarios), cfg.experiment.num_envs
-    obs, state = observation_size(s), state_size(s)
-    per_uav = 4 * (2 * (obs + state) + 2 + 1 + 1 + 2 + 2)          # float32 obs/state twice, action, ...
-    parts = {}
-    if cfg.algo.name in ("sac", "ddpg"):
-        capacity = max(1, math.ceil(cfg.algo.buffer_size / n))
-        parts["replay buffer"] = capacity * n * per_uav
-    # Per world: about 2 kB per UAV of state and sensing, 40 float32 [N, N] pairwise terms, the beams.
-    parts["worlds"] = b * n * (2048 + 160 * n + 16 * s.n_beams)
-    return parts
+    """Bytes the run will hold, by the config key that sets them (:func:`.memory.train_bytes`)."""
+    return train_bytes(cfg)
 
 
 def prepare(cfg: TrainConfig, run_dir: Path) -> None:
@@ -160,14 +145,7 @@ def prepare(cfg: TrainConfig, run_dir: Path) -> None:
         except ConfigError as exc:
             raise ConfigError("experiment.swarm_sizes" if cfg.experiment.swarm_sizes else exc.key,
                               exc.message) from None
-    free = available_memory()
-    if free is not None:
-        need = memory_estimate(cfg)
-        if sum(need.values()) > free:
-            worst = max(need, key=need.get)
-            key = "algo.buffer_size" if worst == "replay buffer" else "experiment.num_envs or scenario.n_uavs"
-            raise ConfigError(key, f"the {worst} needs about {need[worst] / 2**30:.1f} GiB, but this machine has "
-                                   f"{free / 2**30:.1f} GiB free")
+    check_memory(memory_estimate(cfg), "the run")
     exists = (run_dir / LAST).exists()
     mode = cfg.resume_mode
     if mode == "never" and exists:
@@ -390,9 +368,10 @@ class Training:
                       device=device,
                       init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
                       auto_register_policy_transforms=False)
-        if exp.workers > 1:
-            self.collector = MultiSyncCollector([functools.partial(factory, cfg.seed * 1000 + w)
-                                                 for w in range(exp.workers)], learner.collector_policy, **kwargs)
+        if exp.workers > 1:  # started where a stop signal cannot reach the workers (.workers)
+            self.collector = start_workers(lambda: MultiSyncCollector(
+                [functools.partial(factory, cfg.seed * 1000 + w) for w in range(exp.workers)],
+                learner.collector_policy, **kwargs))
         else:
             self.collector = Collector(env, learner.collector_policy, track_traj_ids=False, **kwargs)
         # More sizes: one collector each, stepped in turn; their batches are learned from together.
@@ -431,8 +410,7 @@ class Training:
             return self._finish(signals)
 
     def _open_logs(self, resumed: bool) -> None:
-        if resumed:
-            truncate_scalar_logs(self.run_dir, self.counters["frames"])
+        truncate_scalar_logs(self.run_dir, self.counters["frames"] if resumed else None)  # fresh: a dead run's go
         log = self.cfg.logger
         self.logger = make_logger(log.backend, log.project, log.mode, self.run_dir,
                                   f"{self.cfg.policy.id}_seed{self.cfg.seed}")
@@ -656,11 +634,14 @@ class Training:
             self.saved_frames = self.counters["frames"]
             return path
         except OSError as exc:
-            if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            failure = write_failure(OSError(exc.errno, exc.strerror, str(self.ckpt_path)))
+            if failure is None:
                 raise
-            kept = f"the last good checkpoint is {self.ckpt_path}" if self.ckpt_path.exists() else "no checkpoint yet"
-            raise CheckpointError(f"no space left on the device writing {self.ckpt_path} ({os.strerror(exc.errno)}); "
-                                  f"{kept}; free some space and resume") from None
+            exists = self.ckpt_path.exists()
+            kept = f"the last good checkpoint is {self.ckpt_path}" if exists else "no checkpoint yet"
+            fix = "free some space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "fix that"
+            raise CheckpointError(f"{failure} ({os.strerror(exc.errno)}); {kept}; {fix} and "
+                                  f"{'resume' if exists else 'run again'}") from None
 
 
 class _Progress:

@@ -30,6 +30,33 @@ EXTRAS = {
 }
 
 
+def _check_seed(seed: Any) -> None:
+    """``seed``: ``None`` or an integer in [0, 2**64 - 1] (what the env's generators take)."""
+    import operator
+
+    if seed is None:
+        return
+    try:
+        value = operator.index(seed)
+    except TypeError:
+        value = None
+    if value is None or isinstance(seed, bool) or not 0 <= value < 2**64:
+        raise ValueError(f"seed must be None or an integer in [0, 2**64 - 1], got {seed!r}")
+
+
+def _device(device: Any) -> torch.device:
+    """``device`` as a torch device; one the machine lacks (CUDA without CUDA) is a ``ValueError``
+    naming ``device``."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device {device!r} is not a torch device ({' '.join(str(exc).split())})") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r}: this machine has no CUDA device (torch {torch.__version__}, "
+                         f"CUDA {torch.version.cuda or 'not compiled in'}); use device='cpu'")
+    return dev
+
+
 class FlockingEnv(EnvBase):
     """Multi-UAV flocking (Bai et al. 2024) as a batched, torch-native TorchRL environment.
 
@@ -94,7 +121,8 @@ class FlockingEnv(EnvBase):
         check_spawn_feasible(cfg)
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        super().__init__(device=torch.device(device), batch_size=torch.Size([num_envs]))
+        _check_seed(seed)
+        super().__init__(device=_device(device), batch_size=torch.Size([num_envs]))
         self.cfg = cfg
         self.num_envs = num_envs
         self.n_agents = cfg.n_uavs
@@ -338,6 +366,12 @@ class FlockingEnv(EnvBase):
         raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
                          "env.step_and_maybe_reset, rollout and collectors do this)")
 
+    def set_seed(self, seed: int | None = None, static_seed: bool = False) -> int | None:
+        """TorchRL's ``set_seed``; a seed that is not an integer in [0, 2**64 - 1] is a
+        ``ValueError`` naming ``seed``."""
+        _check_seed(seed)
+        return super().set_seed(seed, static_seed)
+
     def _set_seed(self, seed: int | None) -> None:
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
@@ -360,6 +394,10 @@ class FlockingEnv(EnvBase):
             raise ValueError("env state: expected a mapping with a 'world' entry (what get_state() returns)")
         world = TensorDict(fill_absent(self.cfg, world, self.num_envs, self.device), batch_size=[], device=self.device)
         check_state(self.cfg, world, self.num_envs, "env state")
+        for key in STATE_KEYS:  # a NaN position would give NaN observations and never end the episode
+            value = world.get(key)
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise ValueError(f"env state: {key!r} contains NaN or inf; a world's state must be finite")
         for part in ("episode", "sensed"):  # the metrics accumulator and the sensing cache
             for key, value in reference[part].items(include_nested=True, leaves_only=True):
                 key = (part, *key) if isinstance(key, tuple) else (part, key)

@@ -300,7 +300,9 @@ def check_forest(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, p
                  f"cells of {width:.1f} m x {height:.1f} m (the largest obstacle plus the clearance) leave room for "
                  f"{max(int(room[worst]), 0)} near swarm centre ({centre[worst, 0]:.1f}, {centre[worst, 1]:.1f}); "
                  "lower random_circles / random_rectangles, the largest size or random_clearance, or enlarge "
-                 "random_region")
+                 "random_region",
+            also=[f"scenario.{k}" for k in ("random_circles", "random_rectangles", "random_clearance", "random_region",
+                                            "random_circle_radius", "random_rectangle_size")])
 
 
 __all__ = ["blockers", "box_gap", "cell_boxes", "cell_grid", "check_forest", "drawn_count",

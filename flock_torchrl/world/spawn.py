@@ -288,6 +288,9 @@ _FEASIBLE: set[tuple] = set()
 
 
 def _check(cfg: ScenarioConfig) -> None:
+    from ..run.memory import check_scenario_memory
+
+    check_scenario_memory(cfg)  # before the lattices and the forest grid are allocated
     n, s = cfg.n_uavs, cfg.spawn_separation
     static = Obstacles(torch.tensor(cfg.circles, dtype=torch.float64).reshape(1, -1, 3),
                        torch.tensor(cfg.rectangles, dtype=torch.float64).reshape(1, -1, 4))
