@@ -269,3 +269,11 @@ def test_a_signalled_population_checkpoints_and_resumes_to_the_uninterrupted_run
     for seed in (0, 1):
         assert (tmp_path / "whole" / f"seed{seed}" / "episodes.csv").read_text() == \
             (folder / f"seed{seed}" / "episodes.csv").read_text()
+
+
+def test_a_populations_memory_estimate_counts_every_member():
+    from flock_torchrl.run.memory import train_bytes
+
+    one, ten = train_bytes(quick_config(1)), train_bytes(quick_config(10))
+    assert ten["algo.buffer_size"] == 10 * one["algo.buffer_size"]
+    assert ten["experiment.num_envs"] == 10 * one["experiment.num_envs"]

@@ -162,11 +162,12 @@ def train_bytes(cfg: Any) -> dict[str, int]:
     s, exp, sizes = cfg.scenario, cfg.experiment, cfg.train_scenarios
     n = max(t.n_uavs for t in sizes)
     per_uav = 4 * (2 * (observation_size(s) + state_size(s)) + 2 + 1 + 1 + 2 + 2)  # float32 obs/state twice, ...
+    members = int(getattr(cfg, "population", 1) or 1)   # a population holds K buffers and K x B worlds
     parts = {}
     if cfg.algo.name in ("sac", "ddpg"):
-        parts["algo.buffer_size"] = max(1, math.ceil(cfg.algo.buffer_size / n)) * n * per_uav
+        parts["algo.buffer_size"] = members * max(1, math.ceil(cfg.algo.buffer_size / n)) * n * per_uav
     worlds = "experiment.swarm_sizes" if exp.swarm_sizes else "experiment.num_envs"
-    parts[worlds] = sum(exp.num_envs // len(sizes) * world_bytes(t) for t in sizes)
+    parts[worlds] = members * sum(exp.num_envs // len(sizes) * world_bytes(t) for t in sizes)
     parts["experiment.eval_episodes"] = exp.eval_episodes * world_bytes(s)
     return parts
 
