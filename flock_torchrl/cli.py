@@ -118,7 +118,7 @@ def _evaluate_handles(cfg: EvaluateConfig) -> list:
 
 
 def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
-    from .run.memory import check_episodes_memory
+    from .world.memory import check_episodes_memory
     from .run.rollout import try_contender
     from .world.spawn import check_spawn_feasible
 
@@ -157,7 +157,7 @@ def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
 # -- reproduce, figures, scaling
 def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
-    from .run.memory import check_episodes_memory
+    from .world.memory import check_episodes_memory
 
     check_episodes_memory(cfg.scenario, cfg.episodes)
     check_table_inputs(cfg.table, cfg.scenario.reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, cfg.only,
@@ -193,7 +193,7 @@ def _run_figures(cfg: FiguresConfig, out: Path) -> None:
 
 def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
     from .policies.registry import resolve
-    from .run.memory import check_episodes_memory
+    from .world.memory import check_episodes_memory
 
     check_episodes_memory(dataclasses.replace(cfg.scenario, n_uavs=max(cfg.sizes)), cfg.episodes)
     for policy in (cfg.policy_name, *cfg.others):

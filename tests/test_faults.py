@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 from helpers import script_env
 
-from flock_torchrl.run.trainer import make_train_config, train
+from flock_torchrl.run.launch import train
+from flock_torchrl.run.trainer import make_train_config
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.eval_every_frames=0", "experiment.eval_episodes=2",
@@ -106,7 +107,7 @@ def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_pa
 
 def test_check_memory_names_the_costliest_key_and_the_bound():
     from flock_torchrl.config import ConfigError
-    from flock_torchrl.run.memory import Usable, check_memory
+    from flock_torchrl.world.memory import Usable, check_memory
 
     check_memory({"a": 2**30, "b": 2**30}, "x", Usable(3 * 2**30, "a test bound"))  # fits
     with pytest.raises(ConfigError, match=r"^b: x needs about 3.0 GiB, 2.0 GiB of it for b, but this process can "
@@ -116,7 +117,7 @@ def test_check_memory_names_the_costliest_key_and_the_bound():
 
 def test_usable_memory_sees_the_processs_own_limit():
     code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30)); "
-            "from flock_torchrl.run.memory import usable_memory; u = usable_memory(); print(u.bytes, u.what)")
+            "from flock_torchrl.world.memory import usable_memory; u = usable_memory(); print(u.bytes, u.what)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=60)
     left, what = int(out.stdout.split()[0]), out.stdout.split(" ", 1)[1]
     assert what.startswith("its ulimit -v of 3.0 GiB") and 0 < left < 3 * 2**30, out
@@ -128,7 +129,7 @@ def test_the_world_estimate_bounds_the_measured_peak(scenario, n, worlds):
     code = f"""
 from flock_torchrl import FlockingEnv
 from flock_torchrl.config import EvaluateConfig, compose
-from flock_torchrl.run.memory import world_bytes
+from flock_torchrl.world.memory import world_bytes
 s = EvaluateConfig.from_config(compose("evaluate", ["scenario={scenario}", "scenario.n_uavs={n}", "episodes=1"])).scenario
 env = FlockingEnv(s, num_envs=1, seed=0); env.rollout(3, break_when_any_done=False)
 def status(field):

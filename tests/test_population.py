@@ -272,7 +272,7 @@ def test_a_signalled_population_checkpoints_and_resumes_to_the_uninterrupted_run
 
 
 def test_a_populations_memory_estimate_counts_every_member():
-    from flock_torchrl.run.memory import train_bytes
+    from flock_torchrl.world.memory import train_bytes
 
     one, ten = train_bytes(quick_config(1)), train_bytes(quick_config(10))
     assert ten["algo.buffer_size"] == 10 * one["algo.buffer_size"]

@@ -94,7 +94,10 @@ def test_reward_curves_from_checkpoints(tmp_path):
         if seed == 0:  # success: 85 of episodes 1-100, all of 101-200; seed 1 never succeeds
             curve[:85, EPISODE_COLUMNS.index("success")] = 1.0
             curve[100:, EPISODE_COLUMNS.index("success")] = 1.0
-        save_checkpoint({"meta": {}, "actor": {}, "curve": curve}, root / "literal" / "policy3_g" / f"seed{seed}.pt",
+        meta = {"policy": "Policy3-G", "policy_id": "policy3_g", "reading": "literal", "scenario": {},
+                "policy_scenario": {}, "stochastic": True, "hidden": 128, "depth": 2}
+        actor = {"weight": torch.zeros(2, 2)}   # a curve's reader never builds the network
+        save_checkpoint({"meta": meta, "actor": actor, "curve": curve}, root / "literal" / "policy3_g" / f"seed{seed}.pt",
                         kind="policy")
     e, r = training_curve(root / "literal" / "policy3_g" / "seed0.pt")
     assert e.shape == (200,) and r[0] == pytest.approx(0.01)

@@ -50,7 +50,7 @@ from ..world.env import FlockingEnv
 from ..world.metrics import CELL_METRICS
 from ..world.sensors import observation_size, state_size
 from ..world.spawn import check_spawn_feasible
-from .memory import check_memory, train_bytes
+from ..world.memory import check_memory, train_bytes
 from .run_folder import (EpisodeLog, RunLock, clean_stale_temporaries, logger_hparams, make_logger, resume_command,
                          truncate_scalar_logs, write_run_config)
 from .schedule import Schedule, evaluated_at_end

@@ -288,7 +288,7 @@ _FEASIBLE: set[tuple] = set()
 
 
 def _check(cfg: ScenarioConfig) -> None:
-    from ..run.memory import check_scenario_memory
+    from .memory import check_scenario_memory
 
     check_scenario_memory(cfg)  # before the lattices and the forest grid are allocated
     n, s = cfg.n_uavs, cfg.spawn_separation

@@ -122,7 +122,7 @@ def _blockers(scenario: Any) -> int:
 
 def forest_cells(scenario: Any) -> int:
     """The number of cells of the random forest's fallback grid (0 without drawn obstacles)."""
-    from ..world.forest import cell_grid, drawn_count
+    from .forest import cell_grid, drawn_count
 
     if not drawn_count(scenario):
         return 0
@@ -157,7 +157,7 @@ def spawn_check_bytes(scenario: Any, centres: int = 360, lattices: int = 16) -> 
 def train_bytes(cfg: Any) -> dict[str, int]:
     """What a training run holds, by the key that sets it: the replay buffer (swarm transitions
     of every key the learner stores), the training worlds and the evaluation's worlds."""
-    from ..world.sensors import observation_size, state_size
+    from .sensors import observation_size, state_size
 
     s, exp, sizes = cfg.scenario, cfg.experiment, cfg.train_scenarios
     n = max(t.n_uavs for t in sizes)
