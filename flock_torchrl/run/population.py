@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -123,34 +124,14 @@ class PopulationTraining(Training):
         self._freeze_finished()
         return stats
 
-    def _learn(self, batches: Sequence[TensorDictBase]) -> tuple[dict[str, torch.Tensor], int]:
-        import time
-
-        (batch,) = batches
-        exp, split = self.cfg.experiment, self.split
-        start = time.perf_counter()
+    def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
+        """Population rows ``[B * T, K]``: member k's swarm transitions in column k."""
         rows = batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1)
-        self.buffer.extend(rows.transpose(0, 1).contiguous())   # [B * T, K]: member k in column k
-        split["buffer"] += time.perf_counter() - start
-        stats: dict[str, torch.Tensor] = {}
-        n = 0
-        if self.counters["frames"] >= exp.init_random_frames and len(self.buffer) >= self.buffer.batch_size:
-            device = torch.device(self.cfg.device)
-            for _ in range(exp.updates_per_batch):
-                t0 = time.perf_counter()
-                sample = self.buffer.sample().to(device)
-                t1 = time.perf_counter()
-                stats = self.learner.update(sample)
-                split["sampling"] += t1 - t0
-                split["update"] += time.perf_counter() - t1
-                n += 1
-        return stats, n
+        return rows.transpose(0, 1).contiguous()
 
     def _episode_rows(self, batch: TensorDictBase) -> None:
         """Each member's finished episodes as rows of its own episode log (one tensor per column,
         the member of each episode from its world's index)."""
-        import time
-
         start = time.perf_counter()
         done = batch.get(("next", "done")).squeeze(-1)               # [K * B, T]
         if bool(done.any()):
@@ -241,8 +222,6 @@ class PopulationTraining(Training):
 
     # ---------------------------------------------------------------- checkpoints
     def _save(self) -> Path:
-        import time
-
         self.counters["seconds"] = time.perf_counter() - self.start
         self.member_counters = [dict(f["counters"]) if f is not None else {**self.counters, "episodes": e}
                                 for f, e in zip(self.final, self.member_episodes)]

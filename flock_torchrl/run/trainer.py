@@ -498,8 +498,7 @@ class Training:
             return stats, 1
         start = time.perf_counter()
         for batch in batches:
-            self.buffer.extend(per_uav(batch) if self.mixed else
-                               batch.select(*TRANSITION_KEYS, strict=False).reshape(-1))
+            self.buffer.extend(self._transitions(batch))
         split["buffer"] += time.perf_counter() - start
         stats: dict[str, torch.Tensor] = {}
         n = 0
@@ -515,6 +514,11 @@ class Training:
                 split[bucket] += time.perf_counter() - t1
                 n += 1
         return stats, n
+
+    def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
+        """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones
+        when the sizes are mixed."""
+        return per_uav(batch) if self.mixed else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
 
     def _update_bucket(self) -> str:
         """Where an update's time goes: a compiled learner's first one in this process compiles."""
