@@ -36,14 +36,11 @@ from torchrl.envs.utils import ExplorationType
 
 from ..config import TrainConfig
 from ..policies.population import MemberSampler, PopulationLearner
-from ..world.metrics import CELL_METRICS
 from ..world.population import PopulationEnv
-from .run_folder import EpisodeLog
 from ..policies.checkpoint import CheckpointError
-from .trainer import EPISODE_COLUMNS, TRANSITION_KEYS, Training, agentwise_done, checkpoint_meta, start_resource_tracker
-
-_ROW_METRICS = ("return", "success", "safe_success", *CELL_METRICS, "steps")
-
+from .run_folder import EpisodeLog
+from .trainer import (EPISODE_COLUMNS, TRANSITION_KEYS, Training, agentwise_done, checkpoint_meta, episode_rows,
+                      start_resource_tracker)
 
 def member_meta(meta: dict[str, Any], seed: int) -> dict[str, Any]:
     """A member's checkpoint metadata: the population's, with the member's own seed."""
@@ -136,20 +133,15 @@ class PopulationTraining(Training):
         done = batch.get(("next", "done")).squeeze(-1)               # [K * B, T]
         if bool(done.any()):
             world, _ = done.nonzero(as_tuple=True)                   # world-major, as the solo log's rows
-            ep = batch.get(("next", "episode"))[done]
+            episodes = batch.get(("next", "episode"))[done]
             member = self.env.member_of(world)
-            columns = torch.stack([ep[k].double() for k in _ROW_METRICS], -1)   # [E, M]
             for k in member.unique().tolist():                       # members with finished episodes
-                mine = columns[member == k]
+                mine = episodes[member == k]
                 first = self.member_episodes[k]
                 self.member_episodes[k] += mine.shape[0]
                 if self.final[k] is not None:
                     continue  # a final member's later episodes are not its run's
-                numbers = torch.arange(first + 1, first + 1 + mine.shape[0], dtype=torch.float64)[:, None]
-                frames = torch.full_like(numbers, self.counters["frames"])
-                table = torch.cat((numbers, frames, mine), -1).tolist()
-                rows = [[int(r[0]), int(r[1]), round(r[2], 5), int(r[3]), int(r[4]),
-                         *(round(x, 4) for x in r[5:-1]), int(r[-1])] for r in table]
+                rows = episode_rows(mine, first, self.counters["frames"])
                 self.member_logs[k].write(rows)
                 self.member_recent[k] = (self.member_recent[k] + [(r[2], bool(r[3])) for r in rows])[-100:]
         self.counters["episodes"] = min(self.member_episodes)
@@ -195,8 +187,6 @@ class PopulationTraining(Training):
 
     def _evaluate(self) -> dict[str, float]:
         """Evaluate every member that is not final (a final member's last evaluation stands)."""
-        from .rollout import evaluate
-
         rows = []
         for k, seed in enumerate(self.seeds):
             final = self.final[k]
@@ -205,12 +195,8 @@ class PopulationTraining(Training):
                 rows.append(self.member_evaluations[k][-1])
                 continue
             self._eval_actor.load_state_dict(final["actor"] if final is not None else self.learner.actor_state(k))
-            result = evaluate(self._eval_actor, scenario=self.cfg.scenario, n_episodes=self.cfg.experiment.eval_episodes,
-                              seed=self.cfg.eval_seed, device=self.cfg.device)
-            row = {key: float(v) for key, v in result.summary().items()}
-            row["success"], row["safe_success"] = row["success_rate"], row["safe_success_rate"]
-            row["return"] = float(result.episodes["return"].double().mean())
-            row["frames"] = final["counters"]["frames"] if final is not None else self.counters["frames"]
+            row = self._evaluation_row(self._eval_actor,
+                                       final["counters"]["frames"] if final is not None else self.counters["frames"])
             self.member_evaluations[k].append(row)
             self._log({f"seed{seed}/eval/{key}": v for key, v in row.items() if key != "frames"})
             rows.append(row)
@@ -221,14 +207,10 @@ class PopulationTraining(Training):
         return summary
 
     # ---------------------------------------------------------------- checkpoints
-    def _save(self) -> Path:
-        self.counters["seconds"] = time.perf_counter() - self.start
-        self.member_counters = [dict(f["counters"]) if f is not None else {**self.counters, "episodes": e}
-                                for f, e in zip(self.final, self.member_episodes)]
-        return super()._save()
-
     def _state(self) -> dict[str, Any]:
         state = super()._state()
+        counters = [dict(f["counters"]) if f is not None else {**self.counters, "episodes": e}
+                    for f, e in zip(self.final, self.member_episodes)]
         members = []
         for k, seed in enumerate(self.seeds):
             final = self.final[k]
@@ -236,7 +218,7 @@ class PopulationTraining(Training):
                 "seed": seed, "final": final is not None,
                 "meta": member_meta(self.meta, seed),
                 "config": {**self.resolved, "seed": seed, "population": 1},
-                "counters": self.member_counters[k],
+                "counters": counters[k],
                 "actor": final["actor"] if final is not None else self.learner.actor_state(k),
                 "evaluations": list(self.member_evaluations[k]),
                 "curve": final["curve"] if final is not None else self._curve(k),

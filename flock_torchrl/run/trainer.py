@@ -264,6 +264,17 @@ def per_uav(batch: TensorDictBase) -> TensorDictBase:
     return out
 
 
+EPISODE_METRICS = ("return", "success", "safe_success", *CELL_METRICS, "steps")
+
+
+def episode_rows(episodes: TensorDictBase, first: int, frames: int) -> list[list[Any]]:
+    """:data:`EPISODE_COLUMNS` rows of finished episodes (``episodes``: their ``"episode"``
+    entries ``[E]``), numbered from ``first + 1``, all counted at ``frames``."""
+    values = torch.stack([episodes[k].double() for k in EPISODE_METRICS], -1).tolist()   # [E, M]
+    return [[first + 1 + i, frames, round(v[0], 5), int(v[1]), int(v[2]), *(round(x, 4) for x in v[3:-1]), int(v[-1])]
+            for i, v in enumerate(values)]
+
+
 def agentwise_done(batch: TensorDictBase, n_agents: int) -> TensorDictBase:
     """Give the losses per-UAV ``done`` / ``terminated`` (the env shares them across the swarm)."""
     for key in ("done", "terminated"):
@@ -530,14 +541,8 @@ class Training:
         done = batch.get(("next", "done")).squeeze(-1)
         if not done.any():
             return []
-        ep = batch.get(("next", "episode"))[done]
-        columns = {k: ep[k].tolist() for k in ("return", "success", "safe_success", *CELL_METRICS, "steps")}
-        rows = []
-        for i in range(ep.shape[0]):  # the episodes that ended, a handful per batch
-            self.counters["episodes"] += 1
-            rows.append([self.counters["episodes"], self.counters["frames"], round(columns["return"][i], 5),
-                         int(columns["success"][i]), int(columns["safe_success"][i]),
-                         *(round(columns[m][i], 4) for m in CELL_METRICS), int(columns["steps"][i])])
+        rows = episode_rows(batch.get(("next", "episode"))[done], self.counters["episodes"], self.counters["frames"])
+        self.counters["episodes"] += len(rows)
         return rows
 
     # ---------------------------------------------------------------- logging, evaluation
@@ -568,15 +573,20 @@ class Training:
         else:
             print(message, flush=True)
 
-    def _evaluate(self) -> dict[str, float]:
+    def _evaluation_row(self, actor: Any, frames: int) -> dict[str, float]:
+        """The run's evaluation of ``actor`` (the protocol's summary, its success and return) at ``frames``."""
         from .rollout import evaluate
 
-        result = evaluate(self.learner.actor, scenario=self.cfg.scenario, n_episodes=self.cfg.experiment.eval_episodes,
+        result = evaluate(actor, scenario=self.cfg.scenario, n_episodes=self.cfg.experiment.eval_episodes,
                           seed=self.cfg.eval_seed, device=self.cfg.device)
         row = {k: float(v) for k, v in result.summary().items()}
         row["success"], row["safe_success"] = row["success_rate"], row["safe_success_rate"]
         row["return"] = float(result.episodes["return"].double().mean())
-        row["frames"] = self.counters["frames"]
+        row["frames"] = frames
+        return row
+
+    def _evaluate(self) -> dict[str, float]:
+        row = self._evaluation_row(self.learner.actor, self.counters["frames"])
         self.evaluations.append(row)
         self._log({f"eval/{k}": v for k, v in row.items() if k != "frames"})
         return row
@@ -672,5 +682,5 @@ class _Progress:
 
 
 __all__ = ["EPISODE_COLUMNS", "Signals", "Stopped", "TRANSITION_KEYS", "TrainResult", "TrainingInterrupted",
-           "Training", "agentwise_done", "checkpoint_meta", "config_differences", "hydra_output_dir",
+           "Training", "agentwise_done", "checkpoint_meta", "episode_rows", "config_differences", "hydra_output_dir",
            "make_train_config", "memory_estimate", "prepare", "start_resource_tracker"]
