@@ -163,11 +163,14 @@ publish: $(STAMP)
 	$(MAKE) --no-print-directory docs
 
 # The paper's claims over the seeds of each published Table III (docs/specification.md section 10):
-# results/<reading>/table3[_paper_recipe]_claims.md, from the *_seeds.csv tables publish writes.
+# results/<reading>/table3[_paper_recipe]_claims.md (with per-policy means and IQMs over seeds) and
+# figures/<reading>/table3[_paper_recipe]_performance_profile.png, from the *_seeds.csv tables publish writes.
 publish-claims: $(STAMP)
 	for f in results/*/table3_seeds.csv results/*/table3_paper_recipe_seeds.csv; do \
 		test -f $$f || continue; \
-		$(PYTHON) -m flock_torchrl.report.seeds $$f $${f%_seeds.csv}_claims.md || exit 1; \
+		r=$$(basename $$(dirname $$f)); t=$$(basename $${f%_seeds.csv}); \
+		$(PYTHON) -m flock_torchrl.report.seeds $$f $${f%_seeds.csv}_claims.md \
+			figures/$$r/$${t}_performance_profile.png || exit 1; \
 	done
 
 # The parts of publish that change when paper-recipe checkpoints are shipped, alone (paper_fit):

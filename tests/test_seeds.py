@@ -3,8 +3,11 @@
 import pytest
 
 from flock_torchrl.report.claims import CLAIMS
-from flock_torchrl.report.seeds import (claim_verdict, claims_table, compare, comparisons_of, iqm,
-                                        probability_of_improvement, summarise, verdict)
+import numpy as np
+
+from flock_torchrl.report.seeds import (claim_verdict, claims_table, compare, comparisons_of, iqm, performance_profile,
+                                        plot_profiles, probability_of_improvement, score_distribution, summarise,
+                                        summary_table, verdict, write_claims)
 
 
 def test_probability_of_improvement_counts_pairs_and_half_ties():
@@ -68,3 +71,37 @@ def test_claims_table_from_a_seeds_csv(tmp_path):
     path.write_text("\n".join(rows) + "\n")
     table = claims_table(path)
     assert "| Policy3-G above Policy5-G | 3 / 3 | 0.00 [0.00, 0.00] | reversed |" in table
+
+
+def test_score_distribution_counts_runs_strictly_above_each_level():
+    # runs 0.5, 0.8, 0.8, 1.0: above 0.0 all 4; above 0.5 three (0.5 is not above itself);
+    # above 0.8 one; above 1.0 none
+    levels = np.array([0.0, 0.5, 0.8, 1.0])
+    assert score_distribution([0.5, 0.8, 0.8, 1.0], levels).tolist() == [1.0, 0.75, 0.25, 0.0]
+    # batched: runs along the last axis, levels first in the answer
+    batch = score_distribution(np.array([[0.5, 0.8, 0.8, 1.0], [0.0, 0.0, 1.0, 1.0]]), levels)
+    assert batch.shape == (4, 2) and batch[:, 1].tolist() == [0.5, 0.5, 0.5, 0.0]
+
+
+def test_performance_profile_band_holds_the_curve_and_repeats():
+    runs = [0.7, 0.8, 0.85, 0.9, 0.95, 1.0]
+    a, b = performance_profile(runs), performance_profile(runs)
+    assert np.array_equal(a.low, b.low) and np.array_equal(a.high, b.high)
+    assert np.all(a.low <= a.fraction + 1e-12) and np.all(a.fraction <= a.high + 1e-12)
+    assert a.fraction[0] == 1.0 and a.fraction[-1] == 0.0          # levels 0 and 1
+    assert np.any(a.low < a.high)                                   # six different runs: a real band
+
+
+def test_summary_and_profile_written_from_a_seeds_csv(tmp_path):
+    path = tmp_path / "t_seeds.csv"
+    rows = ["policy,extra,success_rate,safe_success_rate,d_min_uav,d_c"]
+    for seed in range(4):
+        rows += [f"Policy5-G,,{0.96 + seed / 100},0.9,1.7,3.0", f"Policy3-G,,{0.90 + seed / 100},0.8,1.6,3.1"]
+    path.write_text("\n".join(rows) + "\n")
+    table = summary_table(path)
+    # Policy5-G success 0.96, 0.97, 0.98, 0.99: mean 0.975; IQM drops one from each end: 0.975
+    assert "| Policy5-G | success_rate | 4 | 0.975 [" in table and "| 0.960-0.990 |" in table
+    claims = write_claims(path, tmp_path / "claims.md").read_text()
+    assert "## Per policy, over seeds" in claims and "| Policy3-G | d_c | 4 | 3.100 [3.100, 3.100]" in claims
+    png = plot_profiles(path, tmp_path / "profile.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -24,6 +24,8 @@ RESAMPLES = 2000
 CONFIDENCE = 0.95
 MIN_SEEDS = 3          # fewer seeds on either side of a comparison: no verdict
 BOOTSTRAP_SEED = 2024
+PROFILE_LEVELS = np.linspace(0.0, 1.0, 201)   # success levels of a performance profile
+SUMMARY_METRICS = ("success_rate", "safe_success_rate", "d_min_uav", "d_c")
 
 
 def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -40,14 +42,46 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> 
     return above + 0.5 * tied
 
 
-def _interval(statistic, samples: Sequence[np.ndarray]) -> tuple[float, float]:
+def score_distribution(scores: np.ndarray, levels: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The performance profile of Agarwal et al. (NeurIPS 2021): the fraction of runs scoring
+    above each of ``levels``. Scores ``[..., n]`` (runs along ``axis``) give ``[len(levels), ...]``
+    (levels first, as ``scipy.stats.bootstrap`` wants a vector statistic)."""
+    s = np.moveaxis(np.asarray(scores, float), axis, -1)
+    return np.moveaxis((s[..., :, None] > np.asarray(levels, float)).mean(-2), -1, 0)
+
+
+def _bootstrap(statistic, samples: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """A percentile bootstrap interval of ``statistic`` over the runs of each sample (a scalar
+    or a vector statistic)."""
     if any(len(s) < 2 for s in samples) or all(np.ptp(s) == 0 for s in samples):
-        value = float(statistic(*samples, axis=-1))
+        value = np.asarray(statistic(*samples, axis=-1), float)
         return value, value   # nothing to resample: every resample gives the same value
     result = stats.bootstrap(tuple(samples), statistic, n_resamples=RESAMPLES, confidence_level=CONFIDENCE,
                              method="percentile", vectorized=True, paired=False,
                              rng=np.random.default_rng(BOOTSTRAP_SEED))
-    return float(result.confidence_interval.low), float(result.confidence_interval.high)
+    return np.asarray(result.confidence_interval.low), np.asarray(result.confidence_interval.high)
+
+
+def _interval(statistic, samples: Sequence[np.ndarray]) -> tuple[float, float]:
+    low, high = _bootstrap(statistic, samples)
+    return float(low), float(high)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One policy's performance profile: the fraction of its runs above each level, with a
+    95 % band over runs."""
+
+    levels: np.ndarray
+    fraction: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+
+
+def performance_profile(scores: Sequence[float], levels: np.ndarray = PROFILE_LEVELS) -> Profile:
+    x = np.asarray(scores, float)
+    statistic = lambda s, axis: score_distribution(s, levels, axis=axis)  # noqa: E731
+    return Profile(np.asarray(levels, float), score_distribution(x, levels), *_bootstrap(statistic, [x]))
 
 
 @dataclass(frozen=True)
@@ -157,33 +191,81 @@ def claims_table(seeds_csv: str | Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def summary_table(seeds_csv: str | Path, metrics: Sequence[str] = SUMMARY_METRICS) -> str:
+    """Markdown: per policy and metric, the mean and the interquartile mean over seeds with
+    their 95 % bootstrap intervals, and the seeds' spread (lowest and highest)."""
+    lines = ["| policy | metric | seeds | mean [95 %] | IQM [95 %] | seeds' spread |", "|---|---|---|---|---|---|"]
+    tables = {metric: read_seed_scores(seeds_csv, metric) for metric in metrics}
+    for policy in tables[metrics[0]]:
+        for metric in metrics:
+            if policy not in tables[metric]:
+                continue
+            m = summarise(tables[metric][policy])
+            lines.append(f"| {policy} | {metric} | {m.n} | {m.mean:.3f} [{m.mean_low:.3f}, {m.mean_high:.3f}] | "
+                         f"{m.iqm:.3f} [{m.iqm_low:.3f}, {m.iqm_high:.3f}] | {m.minimum:.3f}-{m.maximum:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_profiles(seeds_csv: str | Path, destination: str | Path, metric: str = "success_rate",
+                  title: str | None = None) -> Path:
+    """A performance profile per policy with at least two seeds: the fraction of its runs whose
+    ``metric`` lies above each level, with its 95 % band over runs, saved (atomically) as a PNG."""
+    from matplotlib.figure import Figure
+
+    from .figures import save_figure
+
+    fig = Figure(figsize=(7.0, 4.5), dpi=120)
+    ax = fig.add_subplot()
+    scores = {p: s for p, s in read_seed_scores(seeds_csv, metric).items() if len(s) >= 2}
+    for policy, runs in scores.items():
+        profile = performance_profile(runs)
+        line, = ax.step(profile.levels, profile.fraction, where="post", label=f"{policy} ({len(runs)})")
+        ax.fill_between(profile.levels, profile.low, profile.high, step="post", alpha=0.12, color=line.get_color())
+    lowest = min((min(runs) for runs in scores.values()), default=0.0)
+    ax.set_xlim(max(0.0, math.floor(lowest * 50 - 1) / 50), 1.0 + 0.005)   # from just below the lowest run
+    ax.set_xlabel(f"{metric} level")
+    ax.set_ylabel("fraction of runs above the level")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(title or f"Performance profiles over seeds: {Path(seeds_csv).name}")
+    ax.legend(fontsize=7, ncol=2, loc="lower left")
+    ax.grid(alpha=0.3)
+    return save_figure(fig, destination)
+
+
 def write_claims(seeds_csv: str | Path, destination: str | Path) -> Path:
-    """Write :func:`claims_table` of ``seeds_csv`` to ``destination`` (atomically), with how it was made."""
+    """Write :func:`claims_table` and :func:`summary_table` of ``seeds_csv`` to ``destination``
+    (atomically), with how they were made."""
     from ..io import write_text
 
     text = (f"# The paper's claims over seeds: `{Path(seeds_csv).name}`\n\n"
             "Each comparison is P(X > Y) over the seeds' scores (ties half) with a 95 % percentile bootstrap "
             f"interval ({RESAMPLES} resamples, scipy.stats.bootstrap); the verdict follows "
             "docs/specification.md section 10. Written by `python -m flock_torchrl.report.seeds`.\n\n"
-            + claims_table(seeds_csv))
+            + claims_table(seeds_csv)
+            + "\n## Per policy, over seeds\n\nIntervals: percentile bootstrap over seeds, as above; a single "
+            "seed has no interval (its value twice).\n\n" + summary_table(seeds_csv))
     return write_text(destination, text)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """``python -m flock_torchrl.report.seeds <table_seeds.csv> <claims.md>``."""
+    """``python -m flock_torchrl.report.seeds <table_seeds.csv> <claims.md> [<profile.png>]``."""
     import sys
 
     args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) != 2:
-        raise SystemExit("usage: python -m flock_torchrl.report.seeds <table3_seeds.csv> <claims_over_seeds.md>")
+    if len(args) not in (2, 3):
+        raise SystemExit("usage: python -m flock_torchrl.report.seeds <table3_seeds.csv> <claims_over_seeds.md> "
+                         "[<performance_profile.png>]")
     if not Path(args[0]).is_file():
         raise SystemExit(f"error: no seeds table at {args[0]}")
-    print(f"wrote {write_claims(*args)}")
+    print(f"wrote {write_claims(*args[:2])}")
+    if len(args) == 3:
+        print(f"wrote {plot_profiles(args[0], args[2])}")
 
 
 if __name__ == "__main__":
     main()
 
 
-__all__ = ["Comparison", "SeedSummary", "claim_verdict", "claims_table", "compare", "comparisons_of", "iqm",
-           "probability_of_improvement", "read_seed_scores", "summarise", "verdict", "write_claims"]
+__all__ = ["Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_table", "compare", "comparisons_of", "iqm",
+           "performance_profile", "plot_profiles", "probability_of_improvement", "read_seed_scores",
+           "score_distribution", "summarise", "summary_table", "verdict", "write_claims"]
