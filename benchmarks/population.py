@@ -7,14 +7,20 @@ population of ``--members`` seeds under the same recipe and frame budget per mem
 population's update eager (torch.vmap) and the solo run's both eager and compiled (the paper
 recipe's shipped runs compiled it). A row's rate counts the loop's own time (env, collection,
 buffer, sampling, update: the run's time split without evaluation, checkpoints or the first
-compiled update) and prints where that time went. Peak memory per member is the population's
-replay buffer and stacked parameters (bytes of their tensors) divided by the members.
-Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+compiled update) and prints where that time went. Each row trains in a fresh child process,
+so its peak resident memory (``ru_maxrss``) is its own: a population's memory per member is its
+peak over the members, and what each member beyond the first adds is the population's peak less
+the solo run's, over ``members - 1``. Where CUDA exists, the solo and population rows run once more
+on the GPU. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import resource
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -27,37 +33,58 @@ from flock_torchrl.run.trainer import make_train_config
 LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
 
 
-def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path) -> dict:
+def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str = "cpu") -> dict:
     overrides = [f"population={members}", f"experiment.max_frames={frames}", "experiment.max_episodes=0",
                  "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "experiment.checkpoint_every_frames=0",
-                 "progress=false", "logger=none", f"compile={compile}", "reading=paper_fit"]
+                 "progress=false", "logger=none", f"compile={compile}", "reading=paper_fit", f"device={device}"]
     cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, overrides))
-    result = train(cfg, folder / f"{recipe}_{members}_{compile}")
+    result = train(cfg, folder / f"{recipe}_{members}_{compile}_{device}")
     loop = sum(result.split.get(k, 0.0) for k in LOOP)
-    return {"recipe": recipe, "members": members, "compile": compile, "updates": result.updates,
+    return {"recipe": recipe, "members": members, "compile": compile, "device": device, "updates": result.updates,
             "member_updates_per_s": members * result.updates / loop, "loop_s": loop,
-            "split": {k: result.split.get(k, 0.0) / loop for k in LOOP if result.split.get(k, 0.0)}}
+            "split": {k: result.split.get(k, 0.0) / loop for k in LOOP if result.split.get(k, 0.0)},
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}   # Linux: KiB
+
+
+def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str) -> dict:
+    """:func:`run_row` in a fresh Python process (its peak memory is its own)."""
+    done = subprocess.run([sys.executable, __file__, "--row", recipe, str(members), str(frames), compile, str(folder),
+                           device], capture_output=True, text=True)
+    if done.returncode:
+        raise RuntimeError(f"benchmark row {recipe} x{members} failed:\n{done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def population_lines(frames: int = 3000, members: int = 10, recipes: str = "paper,fast",
                      print_each: bool = True) -> list[str]:
     """The rows of every recipe, each line printed as soon as it is measured."""
     lines = []
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in recipes.split(","):
             n = frames if recipe == "paper" else max(frames, 4096)
-            plan = [(1, "false")] + ([(1, "true")] if recipe == "paper" else []) + [(members, "false")]
-            base = None
-            for k, compile in plan:
-                r = run_row(recipe, k, n, compile, Path(tmp))
-                base = base or r["member_updates_per_s"]
-                split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
-                line = (f"population {recipe:5s} members {r['members']:2d} compile={r['compile']:5s}: "
-                        f"{r['member_updates_per_s']:8.1f} member-updates/s ({r['member_updates_per_s'] / base:.2f}x "
-                        f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split})")
-                lines.append(line)
-                if print_each:
-                    print(line, flush=True)
+            for device in devices:
+                plan = [(1, "false")] + ([(1, "true")] if recipe == "paper" and device == "cpu" else []) \
+                    + [(members, "false")]
+                base = solo_mb = None
+                for k, compile in plan:
+                    r = row_in_child(recipe, k, n, compile, Path(tmp), device)
+                    base = base or r["member_updates_per_s"]
+                    solo_mb = solo_mb or r["peak_mb"]
+                    split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
+                    memory = (f"peak {r['peak_mb']:.0f} MB, {r['peak_mb'] / k:.0f} MB per member, each member past "
+                              f"the first {(r['peak_mb'] - solo_mb) / (k - 1):.0f} MB" if k > 1
+                              else f"peak {r['peak_mb']:.0f} MB")
+                    line = (f"population {recipe:5s} {device:4s} members {r['members']:2d} compile={r['compile']:5s}: "
+                            f"{r['member_updates_per_s']:8.1f} member-updates/s ({r['member_updates_per_s'] / base:.2f}x "
+                            f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; {memory})")
+                    lines.append(line)
+                    if print_each:
+                        print(line, flush=True)
+    if len(devices) == 1:
+        lines.append("population rows on a GPU: no CUDA device here (they run where torch.cuda.is_available())")
+        if print_each:
+            print(lines[-1], flush=True)
     return lines
 
 
@@ -66,8 +93,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=3000)
     parser.add_argument("--members", type=int, default=10)
     parser.add_argument("--recipes", default="paper,fast")
+    parser.add_argument("--row", nargs=6, metavar=("RECIPE", "MEMBERS", "FRAMES", "COMPILE", "FOLDER", "DEVICE"),
+                        help="one row, printed as JSON (what population_lines runs in a child process)")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.row:
+        recipe, k, frames, compile, folder, device = args.row
+        print(json.dumps(run_row(recipe, int(k), int(frames), compile, Path(folder), device)))
+        return
     population_lines(args.frames, args.members, args.recipes)
 
 

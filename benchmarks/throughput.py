@@ -23,7 +23,6 @@ app on ``benchmarks/conf/benchmark.yaml`` whose config is :class:`BenchmarkConfi
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -41,6 +40,8 @@ from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
 from benchmarks.population import population_lines
+from benchmarks.reset import reset_lines
+from benchmarks.timing import paired
 
 
 @dataclass
@@ -85,19 +86,6 @@ class Row:
     @property
     def ratio(self) -> float:
         return self.ours / self.baseline if self.baseline else math.nan
-
-
-def paired(candidates: dict[str, Callable[[], None]], repeat: int = 3) -> dict[str, float]:
-    """Best wall time (s) of each candidate over ``repeat`` alternated rounds, after a warm-up."""
-    for fn in candidates.values():
-        fn()
-    best = {name: math.inf for name in candidates}
-    for _ in range(repeat):
-        for name, fn in candidates.items():
-            start = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - start)
-    return best
 
 
 def _stepper(env, steps: int) -> Callable[[], None]:
@@ -349,9 +337,11 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     text += "\n" + "\n".join(notes)
     # Populations against solo runs, the whole training loop (benchmarks/population.py).
     text += "\n" + "\n".join(population_lines(frames=400 if cfg.quick else 3000, print_each=False))
+    # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
+    text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
     print(text, flush=True)
     write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
 
 
 __all__ = ["BenchmarkConfig", "CheckFirst", "PreviousSACUpdate", "Row", "benchmark_app", "checked", "env_rows",
-           "format_rows", "learner_rows", "loop_rows", "paired", "replay_batches", "run_all", "scale_rows"]
+           "format_rows", "learner_rows", "loop_rows", "replay_batches", "run_all", "scale_rows"]

@@ -11,6 +11,7 @@ import pytest
 import torch
 from helpers import ROOT, script_env
 
+from benchmarks.reset import reset_lines, resetter
 from benchmarks.step import stepper
 from benchmarks.throughput import BenchmarkConfig, CheckFirst, format_rows, learner_rows
 from flock_torchrl import ConfigError, FlockingEnv
@@ -86,3 +87,15 @@ def test_the_step_benchmark_steps_from_one_fixed_state(api):
     assert torch.equal(fixed["position"], start)
     if api != "advance":  # the pure step function returns its state; env.step stores it
         assert env.world is not fixed and not torch.equal(env.world["position"], start)
+
+
+def test_the_reset_rows_reset_only_the_masked_worlds_and_count_endings():
+    """A partial reset changes the masked worlds and no other; the rows name each case."""
+    env = FlockingEnv("train", 4, "cpu", 0, policy_id="policy3_g")
+    env.reset()
+    before = env.world["position"].clone()
+    resetter(env, 1, 1)()
+    after = env.world["position"]
+    assert not torch.equal(after[0], before[0]) and torch.equal(after[1:], before[1:])
+    lines = reset_lines(batch=4, rounds=1, print_each=False)
+    assert len(lines) == 5 and "reset 2 worlds" in lines[1] and "reset 4 worlds" in lines[2] and "worlds ending per step" in lines[-1]
