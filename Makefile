@@ -164,7 +164,8 @@ publish: $(STAMP)
 
 # The paper's claims over the seeds of each published Table III (docs/specification.md section 10):
 # results/<reading>/table3[_paper_recipe]_claims.md (with per-policy means and IQMs over seeds) and
-# figures/<reading>/table3[_paper_recipe]_performance_profile.png, from the *_seeds.csv tables publish writes.
+# figures/<reading>/table3[_paper_recipe]_performance_profile.png, from the *_seeds.csv tables publish writes;
+# results/<reading>/claims_overview.md (paper / fast / paper recipe per claim), quoted in README.md.
 publish-claims: $(STAMP)
 	for f in results/*/table3_seeds.csv results/*/table3_paper_recipe_seeds.csv; do \
 		test -f $$f || continue; \
@@ -172,6 +173,11 @@ publish-claims: $(STAMP)
 		$(PYTHON) -m flock_torchrl.report.seeds $$f $${f%_seeds.csv}_claims.md \
 			figures/$$r/$${t}_performance_profile.png || exit 1; \
 	done
+	for r in literal paper_fit; do \
+		$(PYTHON) -m flock_torchrl.report.seeds --overview results/$$r/claims_overview.md \
+			"fast recipe=results/$$r/table3_seeds.csv" "paper recipe=results/$$r/table3_paper_recipe_seeds.csv" || exit 1; \
+	done
+	$(PYTHON) -m flock_torchrl.report.splice README.md
 
 # The parts of publish that change when paper-recipe checkpoints are shipped, alone (paper_fit):
 # the paper recipe's Table III, the fast Table III (its "Policy3-G (paper recipe)" row pools

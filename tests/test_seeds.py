@@ -5,7 +5,7 @@ import pytest
 from flock_torchrl.report.claims import CLAIMS
 import numpy as np
 
-from flock_torchrl.report.seeds import (claim_verdict, claims_table, compare, comparisons_of, iqm, performance_profile,
+from flock_torchrl.report.seeds import (claim_verdict, claims_overview, claims_table, compare, comparisons_of, iqm, performance_profile,
                                         plot_profiles, probability_of_improvement, score_distribution, summarise,
                                         summary_table, verdict, write_claims)
 
@@ -105,3 +105,18 @@ def test_summary_and_profile_written_from_a_seeds_csv(tmp_path):
     assert "## Per policy, over seeds" in claims and "| Policy3-G | d_c | 4 | 3.100 [3.100, 3.100]" in claims
     png = plot_profiles(path, tmp_path / "profile.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_claims_overview_sets_the_paper_beside_each_recipe(tmp_path):
+    fast = tmp_path / "fast_seeds.csv"
+    rows = ["policy,extra,success_rate,d_min_uav,d_c"]
+    for seed in range(3):
+        rows += [f"Policy5-G,,{0.99 - seed / 100},1.7,3.0", f"Policy3-G,,{0.90 + seed / 100},1.6,3.1"]
+    fast.write_text("\n".join(rows) + "\n")
+    table = claims_overview({"fast": fast, "paper recipe": tmp_path / "missing.csv"})
+    tangential = next(line for line in table.splitlines() if "tangential" in line)
+    # the paper: Policy3-G 0.938 above Policy5-G 0.886 in its Table III; ours: every Policy3-G seed
+    # below every Policy5-G seed, so P = 0 and its interval [0, 0]: reversed
+    assert tangential.endswith("| holds (1 of 1) | reversed: P = 0.00 [0.00, 0.00] (3 seeds) | not published |")
+    critic = next(line for line in table.splitlines() if "critic" in line)
+    assert "no comparison (policies not trained)" in critic

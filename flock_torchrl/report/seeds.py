@@ -232,6 +232,59 @@ def plot_profiles(seeds_csv: str | Path, destination: str | Path, metric: str = 
     return save_figure(fig, destination)
 
 
+def _seed_cell(claim: Claim, seeds_csv: str | Path) -> str:
+    """One claim over one recipe's seeds: its verdict, then P(X > Y) with its interval (one
+    comparison) or the range of P over its comparisons, and the seeds per policy."""
+    scores = read_seed_scores(seeds_csv, claim.metric)
+    found = comparisons_of(claim, scores)
+    if not found:
+        return "no comparison (policies not trained)"
+    counts = sorted({len(scores[n]) for c in found for n in (c.better, c.worse)})
+    seeds = (f"{counts[0]} seed" + "s" * (counts[0] != 1)) if len(counts) == 1 else f"{counts[0]}-{counts[-1]} seeds"
+    if len(found) == 1:
+        c = found[0]
+        return f"{c.verdict}: P = {c.probability:.2f} [{c.low:.2f}, {c.high:.2f}] ({seeds})"
+    ps = [c.probability for c in found]
+    return f"{claim_verdict(found)}: P {min(ps):.2f}-{max(ps):.2f} over {len(found)} pairs ({seeds} each)"
+
+
+def _paper_cell(claim: Claim) -> str:
+    """The claim in the paper's own Table III (point values: how many comparisons hold)."""
+    from .reference import load_reference
+
+    values = {row["policy"]: float(row[claim.metric]) for row in load_reference(3)[1]}
+    held, total = claim.compare(claim.groups, values.__getitem__)
+    return f"holds ({held} of {total})" if held == total else f"{held} of {total} hold"
+
+
+def claims_overview(recipes: Mapping[str, str | Path]) -> str:
+    """Markdown: each claim of :data:`~.claims.CLAIMS` that compares policies, in the paper's
+    Table III and over the seeds of each recipe (``{column title: seeds csv}``; a missing file
+    gives an empty column)."""
+    claims = [c for c in CLAIMS if c.compare.__name__ in ("_pairs_below", "_all_above", "_lowest")]
+    titles = list(recipes)
+    lines = ["| claim | paper (Table III) | " + " | ".join(titles) + " |", "|---|---|" + "---|" * len(titles)]
+    for claim in claims:
+        cells = [_seed_cell(claim, path) if Path(path).is_file() else "not published" for path in recipes.values()]
+        lines.append(f"| {claim.text} | {_paper_cell(claim)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_overview(recipes: Mapping[str, str | Path], destination: str | Path) -> Path:
+    """Write :func:`claims_overview` to ``destination`` (atomically), with how it was made."""
+    from ..io import write_text
+
+    text = ("# The paper's claims: paper, fast recipe, paper recipe\n\n"
+            + claims_overview(recipes)
+            + "\nPaper: the comparisons that hold in the paper's own Table III (one value per policy). "
+            "Ours: the verdict of docs/specification.md section 10 over trained seeds (holds when the 95 % "
+            "interval of P(X > Y) lies above 0.5, reversed below, else not distinguishable; fewer than "
+            f"{MIN_SEEDS} seeds: too few), with P(X > Y) and its percentile bootstrap interval "
+            f"({RESAMPLES} resamples, scipy.stats.bootstrap). Each comparison in full: "
+            "`results/<reading>/table3*_claims.md`. Written by `make publish-claims`.\n")
+    return write_text(destination, text)
+
+
 def write_claims(seeds_csv: str | Path, destination: str | Path) -> Path:
     """Write :func:`claims_table` and :func:`summary_table` of ``seeds_csv`` to ``destination``
     (atomically), with how they were made."""
@@ -252,6 +305,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     import sys
 
     args = list(sys.argv[1:] if argv is None else argv)
+    if args[:1] == ["--overview"]:   # --overview <out.md> <title>=<seeds.csv> ...
+        if len(args) < 3 or any("=" not in a for a in args[2:]):
+            raise SystemExit("usage: python -m flock_torchrl.report.seeds --overview <out.md> <title>=<seeds.csv> ...")
+        print(f"wrote {write_overview(dict(a.split('=', 1) for a in args[2:]), args[1])}")
+        return
     if len(args) not in (2, 3):
         raise SystemExit("usage: python -m flock_torchrl.report.seeds <table3_seeds.csv> <claims_over_seeds.md> "
                          "[<performance_profile.png>]")
@@ -266,6 +324,6 @@ if __name__ == "__main__":
     main()
 
 
-__all__ = ["Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_table", "compare", "comparisons_of", "iqm",
+__all__ = ["Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_overview", "claims_table", "compare", "comparisons_of", "iqm",
            "performance_profile", "plot_profiles", "probability_of_improvement", "read_seed_scores",
-           "score_distribution", "summarise", "summary_table", "verdict", "write_claims"]
+           "score_distribution", "summarise", "summary_table", "verdict", "write_claims", "write_overview"]
