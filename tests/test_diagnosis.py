@@ -108,7 +108,8 @@ def test_crash_forensics_of_a_hand_built_crash():
     expected = {"d_obstacle_last": 1.0, "d_scan1_last": 1.0, "nearest_uav_last": 2.0, "uavs_within_2m_last": 0.0,
                 "uavs_within_r0_last": 1.0, "visible_uavs_last": 1.0, "camera_slots_filled_last": 1.0,
                 "uavs_on_shortest_beam_last": 0.0, "heading_cos_last": 1.0, "instinct_on_last": 1.0,
-                "instinct_uav_outward_last": -3.0, "instinct_obstacle_outward_last": 4.0,
+                "instinct_uav_outward_last": -3.0, "instinct_uav_radial_outward_last": -3.0,
+                "instinct_obstacle_outward_last": 4.0,
                 "policy_outward_last": 2.0, "policy_cos_last": 1.0}
     for key, value in expected.items():
         assert float(out[key][0]) == pytest.approx(value, abs=1e-3), key
@@ -128,3 +129,15 @@ def test_the_wrapped_paper_instinct_flies_the_built_in_one():
         assert torch.equal(built_in.episodes[key], wrapped.episodes[key]), key
     with pytest.raises(ValueError, match="variant"):
         run_cell(handle, "train", "paper_fit", 5, "nope", n_episodes=1)
+
+
+def test_the_instinct_wrapper_refuses_a_world_that_applies_its_own():
+    from flock_torchrl.report.diagnosis import InstinctWrapper
+
+    cfg = scenario_config("train", reading="paper_fit", policy="policy3_g")  # instinct on, policy actions
+    with pytest.raises(ValueError, match="instinct=False"):
+        InstinctWrapper(lambda td: td, cfg, "paper")
+    outside = scenario_config("train", reading="paper_fit", policy="policy3_g", instinct=False,
+                              action_mode="velocity")
+    assert InstinctWrapper(lambda td: td, outside, "no_push_in", math.pi).half_fov == math.pi
+    assert InstinctWrapper(lambda td: td, outside, "no_push_in").half_fov == outside.half_fov

@@ -41,15 +41,18 @@ from ..world.step import obstacles_of
 OBS, ACTION = ("agents", "observation"), ("agents", "action")
 UAV_RADIUS = 0.25  # m: half the collision distance, the body a laser that saw UAVs would hit
 
-# variant -> (scenario overrides, what the actor sees, instinct wrapper mode or None)
-VARIANTS: dict[str, tuple[dict[str, Any], str, str | None]] = {
-    "paper": ({}, "own", None),                                    # the paper's instinct, in the world
-    "instinct_off": ({"instinct": False}, "own", None),
-    "allround_camera": ({}, "allround", None),                     # actor's camera slots from the critic's 360 deg camera
-    "wrapped_paper": ({"instinct": False, "action_mode": "velocity"}, "own", "paper"),   # control: == "paper"
-    "nearest3": ({"instinct": False, "action_mode": "velocity"}, "own", "nearest"),
-    "saturated": ({"instinct": False, "action_mode": "velocity"}, "own", "saturated"),
-    "no_push_in": ({"instinct": False, "action_mode": "velocity"}, "own", "no_push_in"),
+# variant -> (scenario overrides, what the actor sees, instinct wrapper mode or None, the wrapper
+# instinct's camera: "own" (the UAV's field of view) or "allround" (360 deg))
+OUTSIDE = {"instinct": False, "action_mode": "velocity"}  # the world of an instinct applied by InstinctWrapper
+VARIANTS: dict[str, tuple[dict[str, Any], str, str | None, str]] = {
+    "paper": ({}, "own", None, "own"),                             # the paper's instinct, in the world
+    "instinct_off": ({"instinct": False}, "own", None, "own"),
+    "allround_camera": ({}, "allround", None, "own"),              # actor's camera slots from the critic's 360 deg camera
+    "wrapped_paper": (OUTSIDE, "own", "paper", "own"),             # control: the same episodes as "paper"
+    "nearest3": (OUTSIDE, "own", "nearest", "own"),
+    "saturated": (OUTSIDE, "own", "saturated", "own"),
+    "no_push_in": (OUTSIDE, "own", "no_push_in", "own"),
+    "no_push_in_360": (OUTSIDE, "own", "no_push_in", "allround"),  # ... and the instinct sees UAVs all round
 }
 
 
@@ -117,17 +120,19 @@ class InstinctWrapper:
     :func:`crowd_instinct` of ``mode``. The env must have the instinct off, ``action_mode =
     velocity`` and the ``physics`` and ``laser`` extras (:data:`VARIANTS` builds it so)."""
 
-    def __init__(self, actor: Callable[[TensorDict], TensorDict], cfg: ScenarioConfig, mode: str) -> None:
+    def __init__(self, actor: Callable[[TensorDict], TensorDict], cfg: ScenarioConfig, mode: str,
+                 half_fov: float | None = None) -> None:
         if cfg.instinct or cfg.action_mode != "velocity":
             raise ValueError("InstinctWrapper needs a world with instinct=False and action_mode='velocity'")
         self.actor, self.cfg, self.mode = actor, cfg, mode
+        self.half_fov = cfg.half_fov if half_fov is None else half_fov  # the instinct's camera (pi: all round)
 
     def __call__(self, td: TensorDict) -> TensorDict:
         cfg = self.cfg
         td = self.actor(td)
         position, heading = td["agents", "position"], td["agents", "heading"]
         command = action_to_command(td[ACTION], heading)
-        neighbours = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)[0]
+        neighbours = near_neighbours(position, heading, cfg.camera_range, self.half_fov)[0]
         triggered, repulsion, _, _ = crowd_instinct(
             position, heading, td["goal"], td["agents", "scan"], neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
             safe_distance=cfg.safe_distance, tangential=cfg.tangential, mode=self.mode)
@@ -223,6 +228,8 @@ def crash_forensics(steps: Mapping[str, torch.Tensor], crash_position: torch.Ten
     _, command, uav, wall = crowd_instinct(position, heading, goal, scan, neighbours, gain=cfg.rep_gain,
                                           r0=cfg.rep_range, safe_distance=cfg.safe_distance,
                                           tangential=cfg.tangential, mode="paper")
+    radial = crowd_instinct(position, heading, goal, scan, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
+                            safe_distance=cfg.safe_distance, tangential=False, mode="paper")[2]  # Eq. 26 alone
     own = action_to_command(flat(steps["action"]), heading)
     me = position[rows, who]  # [E W, 2]
     normal = outward_normal(me[:, None], obs_ew)[:, 0]
@@ -254,7 +261,8 @@ def crash_forensics(steps: Mapping[str, torch.Tensor], crash_position: torch.Ten
         "instinct_obstacle_speed": torch.linalg.vector_norm(wall[rows, who], dim=-1),
     }
     for name, vec in (("instinct", clip_command(command[rows, who], cfg.v_max)), ("instinct_uav", uav[rows, who]),
-                      ("instinct_obstacle", wall[rows, who]), ("policy", own[rows, who])):
+                      ("instinct_uav_radial", radial[rows, who]), ("instinct_obstacle", wall[rows, who]),
+                      ("policy", own[rows, who])):
         comp, cos = along(vec, normal)
         out[f"{name}_outward"], out[f"{name}_cos"] = comp, cos
     valid = steps["valid"].reshape(e * w).float()
@@ -276,7 +284,7 @@ def run_cell(handle: PolicyHandle, scenario: str, reading: str, n_uavs: int, var
     (a ring buffer, by world), and the :func:`crash_forensics` of the obstacle crashes."""
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {', '.join(VARIANTS)}; got {variant!r}")
-    overrides, view, mode = VARIANTS[variant]
+    overrides, view, mode, instinct_view = VARIANTS[variant]
     start = time.perf_counter()
     env = policy_env(handle, scenario, reading, n_episodes, seed, device, {"n_uavs": n_uavs, **overrides},
                      extras=("physics", "laser", "command"))
@@ -285,7 +293,7 @@ def run_cell(handle: PolicyHandle, scenario: str, reading: str, n_uavs: int, var
     if view == "allround":
         module = AllRoundCamera(module)
     if mode is not None:
-        module = InstinctWrapper(module, cfg, mode)
+        module = InstinctWrapper(module, cfg, mode, math.pi if instinct_view == "allround" else None)
     static = Obstacles(torch.tensor(cfg.circles, dtype=torch.float32).reshape(1, -1, 3),
                        torch.tensor(cfg.rectangles, dtype=torch.float32).reshape(1, -1, 4))
     b, n, k = n_episodes, cfg.n_uavs, cfg.n_beams
@@ -384,7 +392,8 @@ CRASH_COLUMNS = ("n_crashes", "crash_time", "share_crash_first_10s", "d_scan1_la
                  "uavs_within_2m_last", "uavs_within_r0_last", "visible_uavs_last", "camera_slots_filled_last",
                  "share_beam_hidden_by_uav_last", "heading_cos_last", "instinct_on_window", "instinct_speed_last",
                  "instinct_uav_speed_last", "instinct_obstacle_speed_last", "instinct_outward_last",
-                 "instinct_cos_last", "instinct_uav_outward_last", "instinct_obstacle_outward_last",
+                 "instinct_cos_last", "instinct_uav_outward_last", "instinct_uav_radial_outward_last",
+                 "instinct_obstacle_outward_last",
                  "share_instinct_pushes_in_last", "share_uav_part_pushes_in_last", "policy_outward_last",
                  "policy_cos_last", "share_policy_pushes_in_last")
 
@@ -463,12 +472,13 @@ def crash_table(rows: Sequence[dict]) -> list[str]:
     """Markdown: the crash forensics of the cells with the paper's instinct."""
     head = ("policy", "scenario", "N", "crashes", "crash t (s)", "<= 10 s", "d_scan1 (m)", "nearest UAV (m)",
             "UAVs < 2 m", "UAVs < r0", "visible", "beam hidden", "heading . n", "instinct on (1 s)", "v_rep (m/s)",
-            "UAV part (m/s)", "obstacle part (m/s)", "v_rep . n (m/s)", "UAV part . n", "obstacle part . n",
+            "UAV part (m/s)", "obstacle part (m/s)", "v_rep . n (m/s)", "UAV part . n", "its radial (Eq. 26) . n", "obstacle part . n",
             "v_rep into obstacle", "policy cmd . n (m/s)", "policy into obstacle")
     keys = ("n_crashes", "crash_time", "share_crash_first_10s", "d_scan1_last", "nearest_uav_last",
             "uavs_within_2m_last", "uavs_within_r0_last", "visible_uavs_last", "share_beam_hidden_by_uav_last",
             "heading_cos_last", "instinct_on_window", "instinct_speed_last", "instinct_uav_speed_last", "instinct_obstacle_speed_last",
-            "instinct_outward_last", "instinct_uav_outward_last", "instinct_obstacle_outward_last",
+            "instinct_outward_last", "instinct_uav_outward_last", "instinct_uav_radial_outward_last",
+            "instinct_obstacle_outward_last",
             "share_instinct_pushes_in_last", "policy_outward_last", "share_policy_pushes_in_last")
     shares = {"share_crash_first_10s", "share_beam_hidden_by_uav_last", "instinct_on_window",
               "share_instinct_pushes_in_last", "share_policy_pushes_in_last"}
