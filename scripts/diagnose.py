@@ -1,5 +1,5 @@
 """Why learned flocks crash at 20-50 UAVs (issue 32): crash forensics and evaluation-time ablations
-(logic: flock_torchrl.report.diagnosis).
+(logic: flock_torchrl.report.diagnosis; findings: docs/scaling_diagnosis.md).
 
     python scripts/diagnose.py                                    # the full grid, into outputs/diagnosis/
     python scripts/diagnose.py --sizes 20 --scenarios forest --variants paper instinct_off --episodes 20
