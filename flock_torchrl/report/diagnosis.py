@@ -126,10 +126,12 @@ class InstinctWrapper:
             raise ValueError("InstinctWrapper needs a world with instinct=False and action_mode='velocity'")
         self.actor, self.cfg, self.mode = actor, cfg, mode
         self.half_fov = cfg.half_fov if half_fov is None else half_fov  # the instinct's camera (pi: all round)
+        self.last_action: torch.Tensor | None = None  # the actor's own action of the last call, [B, N, 2]
 
     def __call__(self, td: TensorDict) -> TensorDict:
         cfg = self.cfg
         td = self.actor(td)
+        self.last_action = td[ACTION].clone()
         position, heading = td["agents", "position"], td["agents", "heading"]
         command = action_to_command(td[ACTION], heading)
         neighbours = near_neighbours(position, heading, cfg.camera_range, self.half_fov)[0]
@@ -306,15 +308,6 @@ def run_cell(handle: PolicyHandle, scenario: str, reading: str, n_uavs: int, var
     rectangles = torch.zeros(b, cfg.random_rectangles, 4)
     moving = torch.zeros(b, cfg.n_moving, 2)
     ended_at = torch.zeros(b, dtype=torch.long)
-    actor_actions = {}
-
-    def remember(td: TensorDict) -> TensorDict:  # the actor's own action, before any wrapper's command
-        actor_actions["last"] = td[ACTION].clone()
-        return td
-
-    if mode is not None:  # the wrapper overwrites the action with a command: keep the actor's
-        inner = module.actor
-        module.actor = lambda td: remember(inner(td))
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         records = td["episode"].clone()
@@ -331,7 +324,8 @@ def run_cell(handle: PolicyHandle, scenario: str, reading: str, n_uavs: int, var
             ring["heading"][rows, slot] = td["agents", "heading"]
             ring["scan"][rows, slot] = td["agents", "scan"]
             out = module(td)
-            action = actor_actions.get("last", out[ACTION]) if mode is not None else out[ACTION]
+            # the actor's own action (a wrapper's output is the executed command)
+            action = module.last_action if mode is not None else out[ACTION]
             ring["action"][rows, slot] = action
             nxt = env.step(out)["next"]
             ring["instinct"][rows, slot] = nxt["agents", "instinct"] if mode is None else torch.zeros_like(
