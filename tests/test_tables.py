@@ -250,3 +250,20 @@ def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
     assert rows[0]["spawn_radius"] == pytest.approx(3.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling.csv", "scaling.md", "scaling.png"]
     assert "| Policy-MA | — | 3 | 3.00 | " in (tmp_path / "scaling.md").read_text()
+
+
+def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_path):
+    """Issue 32 item 4: ``others`` takes the rule-based baselines (rows named as in the paper, no
+    training seed), and ``scenario="forest"`` flies every row in the forest, into scaling_forest.*
+    (the training scenario's scaling.* stay as they are)."""
+    from flock_torchrl.report.scaling import scaling
+
+    rows = scaling("policy3_g", "paper_fit", [3], 1, out_dir=tmp_path, log=lambda message: None,
+                   others=["policy_ma", "policy_op"], scenario="forest")
+    assert [(r["policy"], r["trained_sizes"], r["n_uavs"]) for r in rows] == [
+        ("Policy3-G", "5", 3), ("Policy-MA", "—", 3), ("Policy-OP", "—", 3)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling_forest.csv", "scaling_forest.md",
+                                                          "scaling_forest.png"]
+    text = (tmp_path / "scaling_forest.md").read_text()
+    assert "(reading `paper_fit`, forest)" in text and "Scenario `forest`" in text
+    assert "| Policy-OP | — | 3 |" in text

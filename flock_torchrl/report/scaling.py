@@ -1,10 +1,12 @@
 """Beyond the paper: policies flown by larger swarms than they were trained with.
 
 The paper stops at nine UAVs (S2). :func:`scaling` evaluates shipped policies (Policy3-G
-trained with five UAVs; the mixed-size one trained with 5, 20 and 50 at once) on the
-training scenario at N = 5, 9, 20, 50, 100 (500 episodes each, the evaluation seed), the
+trained with five UAVs; the mixed-size one trained with 5, 20 and 50 at once) and the
+rule-based baselines beside them (``others=["policy_ma", "policy_op"]``) on the training
+scenario or ``forest`` at N = 5, 9, 20, 50, 100 (500 episodes each, the evaluation seed), the
 spawn disc growing with the swarm by the reading's rule (docs/specification.md section 9),
-and writes a table and a plot of success, safe_success, d_c, d_min_uav and t_goal against N.
+and writes a table and a plot of success, safe_success, d_c, d_min_uav and t_goal against N
+(``scaling.*`` for the training scenario, ``scaling_<scenario>.*`` for another).
 """
 
 from __future__ import annotations
@@ -43,28 +45,33 @@ def training_of(handle) -> tuple[str, str]:
 
 def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100), episodes: int = 500,
             seed: int = EVAL_SEED, checkpoints_dir: str | Path = "checkpoints", device: str = "cpu",
-            out_dir: str | Path = ".", log: Callable[[str], None] = print, others: Sequence[str] = ()) -> list[dict]:
+            out_dir: str | Path = ".", log: Callable[[str], None] = print, others: Sequence[str] = (),
+            scenario: str = "train") -> list[dict]:
     """Evaluate ``policy`` (its lowest shipped seed) and each of ``others`` (policy ids or
-    checkpoint files, e.g. the mixed-size policy) at each swarm size; write ``scaling.csv``,
-    ``scaling.md`` and ``scaling.png`` into ``out_dir``."""
+    checkpoint files, e.g. the mixed-size policy or the baselines ``policy_ma``, ``policy_op``)
+    at each swarm size of ``scenario`` (a scenario name: ``train``, ``forest``); write
+    ``scaling.csv``, ``scaling.md`` and ``scaling.png`` into ``out_dir`` (for another scenario
+    than ``train``: ``scaling_<scenario>.*``)."""
     handles = [resolve(p, reading, checkpoints_dir, device)[0] for p in (policy, *others)]
     rows = []
     for k, handle in enumerate(handles):
         experiment, trained = training_of(handle)
-        label = f"{handle.name} [{experiment}, seed {handle.seed}]" if k else handle.name
+        label = f"{handle.name} [{experiment}, seed {handle.seed}]" if k and handle.kind != "rule" else handle.name
         for n in sizes:
             start = time.perf_counter()
-            result = evaluate_handle(handle, "train", reading, episodes, seed, device, {"n_uavs": n})
+            result = evaluate_handle(handle, scenario, reading, episodes, seed, device, {"n_uavs": n})
             s = result.summary()
-            radius = scenario_config("train", reading=reading, n_uavs=n).swarm_spawn_radius
+            radius = scenario_config(scenario, reading=reading, n_uavs=n).swarm_spawn_radius
             rows.append({"policy": label, "trained_sizes": trained, "n_uavs": n, "spawn_radius": radius,
                          "crashed_rate": result.rate("crashed").rate, **{c: s[c] for c in COLUMNS if c in s},
                          "seconds": round(time.perf_counter() - start, 1)})
             log(f"[{len(rows)}/{len(sizes) * len(handles)}] {label} N={n}: {result}")
     out = Path(out_dir)
-    write_csv(out / "scaling.csv", COLUMNS, rows)
-    lines = [f"# Policies flown by N UAVs (reading `{reading}`)", "",
-             f"Training scenario, {episodes} episodes per size, evaluation seed {seed}, deterministic actions; "
+    stem = "scaling" if scenario == "train" else f"scaling_{scenario}"
+    where = "Training scenario" if scenario == "train" else f"Scenario `{scenario}`"
+    write_csv(out / f"{stem}.csv", COLUMNS, rows)
+    lines = [f"# Policies flown by N UAVs (reading `{reading}`{'' if scenario == 'train' else f', {scenario}'})", "",
+             f"{where}, {episodes} episodes per size, evaluation seed {seed}, deterministic actions; "
              "checkpoints " + ", ".join(f"`{h.origin}`" for h in handles) + ". Spawn radius by the reading's "
              "swarm-size rule (docs/specification.md section 9). Rates with 95 % Wilson intervals; cells mean ± std.",
              "", "An episode ends when any UAV comes within 0.5 m of an obstacle: `crashed` counts those episodes.", "",
@@ -80,8 +87,8 @@ def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100
                      f"{r['d_c']:.2f} ± {r['d_c_std']:.2f} | "
                      f"{r['d_min_uav']:.2f} ± {r['d_min_uav_std']:.2f} | "
                      + ("—" if math.isnan(r["t_goal"]) else f"{r['t_goal']:.1f} ± {r['t_goal_std']:.1f}") + " |")
-    write_text(out / "scaling.md", "\n".join(lines) + "\n")
-    plot(rows, f"By swarm size ({reading})", out / "scaling.png")
+    write_text(out / f"{stem}.md", "\n".join(lines) + "\n")
+    plot(rows, f"By swarm size ({reading}, {scenario})", out / f"{stem}.png")
     return rows
 
 

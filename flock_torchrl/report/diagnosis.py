@@ -1,0 +1,489 @@
+"""Why learned flocks crash at 20-50 UAVs (issue 32, item 1): crash forensics and evaluation-time ablations.
+
+Two tools, both on the evaluation protocol (seeded batched episodes, deterministic actions):
+
+* :func:`run_cell` evaluates one policy in one world under one *variant* and, for every episode
+  that ends in an obstacle crash, keeps the last ``window`` steps (1 s at ``dt = 0.2``) of the
+  UAV that hit: what its laser and camera saw, how many UAVs were packed around it, what the
+  repulsion instinct would command (split into its UAV and obstacle parts) and what the policy
+  itself asked for, each projected on the obstacle's outward normal (:func:`crash_forensics`).
+* The variants (:data:`VARIANTS`) separate the causes at evaluation time, without retraining
+  and without touching the world: the paper's instinct; the instinct off; the actor fed the
+  critic's all-round camera slots instead of its own; and instincts that hold in a crowd,
+  applied by a wrapper (:class:`InstinctWrapper`) in a world whose own instinct is off and whose
+  actions are velocity commands: the paper's instinct re-applied (a control: it must give the
+  built-in instinct's episodes), over the nearest ``k`` visible UAVs only, with the UAV part
+  saturated, and one that never pushes toward the obstacle the laser sees.
+
+Rates come with exact (Clopper-Pearson) binomial 95 % intervals (:func:`binomial_ci`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from ..config import EVAL_SEED, ScenarioConfig
+from ..policies.registry import PolicyHandle
+from ..run.rollout import policy_env
+from ..world.dynamics import action_to_command, clip_command
+from ..world.geometry import Obstacles, nearest_obstacle_distance
+from ..world.instinct import repulsion_xy
+from ..world.sensors import Neighbours, beam_return_offset, near_neighbours, smallest
+from ..world.step import obstacles_of
+
+OBS, ACTION = ("agents", "observation"), ("agents", "action")
+UAV_RADIUS = 0.25  # m: half the collision distance, the body a laser that saw UAVs would hit
+
+# variant -> (scenario overrides, what the actor sees, instinct wrapper mode or None, the wrapper
+# instinct's camera: "own" (the UAV's field of view) or "allround" (360 deg))
+OUTSIDE = {"instinct": False, "action_mode": "velocity"}  # the world of an instinct applied by InstinctWrapper
+VARIANTS: dict[str, tuple[dict[str, Any], str, str | None, str]] = {
+    "paper": ({}, "own", None, "own"),                             # the paper's instinct, in the world
+    "instinct_off": ({"instinct": False}, "own", None, "own"),
+    "allround_camera": ({}, "allround", None, "own"),              # actor's camera slots from the critic's 360 deg camera
+    "wrapped_paper": (OUTSIDE, "own", "paper", "own"),             # control: the same episodes as "paper"
+    "nearest3": (OUTSIDE, "own", "nearest", "own"),
+    "saturated": (OUTSIDE, "own", "saturated", "own"),
+    "no_push_in": (OUTSIDE, "own", "no_push_in", "own"),
+    "no_push_in_360": (OUTSIDE, "own", "no_push_in", "allround"),  # ... and the instinct sees UAVs all round
+}
+
+
+def binomial_ci(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Exact (Clopper-Pearson) interval of a rate ``k / n`` (``scipy.stats.binomtest``)."""
+    from scipy.stats import binomtest
+
+    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=level, method="exact")
+    return float(ci.low), float(ci.high)
+
+
+# ---------------------------------------------------------------------------- instincts
+def crowd_instinct(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
+                   neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float, tangential: bool,
+                   mode: str = "paper", k: int = 3, cap: float | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The repulsion instinct (specification section 3) and variants that hold in a crowd.
+
+    ``mode``: ``paper`` (Eq. 26-29 as the world applies it); ``nearest`` (only the ``k``
+    closest visible UAVs push); ``saturated`` (the UAVs' summed push is scaled down to at most
+    ``cap`` m/s, default ``gain (r0 - d_safe)``, what one UAV at the switch distance gives);
+    ``no_push_in`` (the part of the UAVs' push that points toward the obstacle the shortest beam
+    hits is removed). The obstacle's own (virtual UAV) term and the switch are the paper's.
+
+    Args:
+        position ``[B, N, 2]``, heading ``[B, N]``, goal ``[B, 2]``, beams ``[B, N, K]``; neighbours
+        as :func:`~flock_torchrl.world.sensors.near_neighbours` gives them.
+
+    Returns:
+        ``(triggered [B, N], command [B, N, 2], uav_part [B, N, 2], obstacle_part [B, N, 2])``,
+        command = uav_part + obstacle_part, not clipped.
+    """
+    if mode not in ("paper", "nearest", "saturated", "no_push_in"):
+        raise ValueError(f"mode must be paper, nearest, saturated or no_push_in; got {mode!r}")
+    d_scan1, wall = beam_return_offset(beams, heading)
+    to_goal = goal[:, None, :] - position
+    visible = neighbours.visible
+    if mode == "nearest":
+        key = torch.where(visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
+        kth = smallest(key, min(k, key.shape[-1]))[0][..., -1:]
+        visible = visible & (key <= kth)
+    ux, uy = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance, visible, to_goal, gain, r0, tangential)
+    uav = torch.stack((ux, uy), -1)
+    wx, wy = repulsion_xy(wall[..., 0, None], wall[..., 1, None], d_scan1[..., None],
+                          torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential)
+    obstacle = torch.stack((wx, wy), -1)
+    if mode == "saturated":
+        limit = gain * (r0 - safe_distance) if cap is None else cap
+        norm = torch.linalg.vector_norm(uav, dim=-1, keepdim=True)
+        uav = uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
+    elif mode == "no_push_in":
+        # outward normal of the obstacle the laser sees: from its return point back to the UAV
+        seen = (d_scan1 > 0) & (d_scan1 < r0)
+        normal = -wall / d_scan1.clamp_min(1e-12)[..., None]
+        inward = (uav * normal).sum(-1, keepdim=True).clamp_max(0.0)
+        uav = torch.where(seen[..., None], uav - inward * normal, uav)
+    nearest = torch.where(neighbours.visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
+    triggered = torch.minimum(nearest.amin(-1), d_scan1) <= safe_distance
+    return triggered, uav + obstacle, uav, obstacle
+
+
+class InstinctWrapper:
+    """An actor plus an instinct applied outside the world: the actor's action becomes its
+    velocity command (Eq. 19-20), which the UAVs whose instinct switches replace by
+    :func:`crowd_instinct` of ``mode``. The env must have the instinct off, ``action_mode =
+    velocity`` and the ``physics`` and ``laser`` extras (:data:`VARIANTS` builds it so)."""
+
+    def __init__(self, actor: Callable[[TensorDict], TensorDict], cfg: ScenarioConfig, mode: str,
+                 half_fov: float | None = None) -> None:
+        if cfg.instinct or cfg.action_mode != "velocity":
+            raise ValueError("InstinctWrapper needs a world with instinct=False and action_mode='velocity'")
+        self.actor, self.cfg, self.mode = actor, cfg, mode
+        self.half_fov = cfg.half_fov if half_fov is None else half_fov  # the instinct's camera (pi: all round)
+        self.last_action: torch.Tensor | None = None  # the actor's own action of the last call, [B, N, 2]
+
+    def __call__(self, td: TensorDict) -> TensorDict:
+        cfg = self.cfg
+        td = self.actor(td)
+        self.last_action = td[ACTION].clone()
+        position, heading = td["agents", "position"], td["agents", "heading"]
+        command = action_to_command(td[ACTION], heading)
+        neighbours = near_neighbours(position, heading, cfg.camera_range, self.half_fov)[0]
+        triggered, repulsion, _, _ = crowd_instinct(
+            position, heading, td["goal"], td["agents", "scan"], neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
+            safe_distance=cfg.safe_distance, tangential=cfg.tangential, mode=self.mode)
+        command = torch.where(triggered[..., None], repulsion, command)
+        td.set(ACTION, clip_command(command, cfg.v_max))
+        return td
+
+
+class AllRoundCamera:
+    """The actor fed the critic's camera slots (all round, phi_v = 2 pi) in place of its own:
+    ``observation [..., :d]`` becomes ``state [..., :d]`` (the two share the goal and laser parts)."""
+
+    def __init__(self, actor: Callable[[TensorDict], TensorDict]) -> None:
+        self.actor = actor
+
+    def __call__(self, td: TensorDict) -> TensorDict:
+        obs = td[OBS]
+        seen = td.select(OBS, ("agents", "state"))
+        seen.set(OBS, td["agents", "state"][..., : obs.shape[-1]])
+        td.set(ACTION, self.actor(seen)[ACTION])
+        return td
+
+
+# ---------------------------------------------------------------------------- forensics
+def outward_normal(points: torch.Tensor, obstacles: Obstacles, h: float = 1e-3) -> torch.Tensor:
+    """Unit gradient of the distance to the nearest obstacle surface at ``points [B, N, 2]``
+    (central differences): the direction that leads away from it, ``[B, N, 2]``."""
+    ex = points.new_tensor([h, 0.0])
+    ey = points.new_tensor([0.0, h])
+    gx = nearest_obstacle_distance(points + ex, obstacles) - nearest_obstacle_distance(points - ex, obstacles)
+    gy = nearest_obstacle_distance(points + ey, obstacles) - nearest_obstacle_distance(points - ey, obstacles)
+    g = torch.stack((gx, gy), -1)
+    return g / torch.linalg.vector_norm(g, dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def along(vec: torch.Tensor, normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Component of ``vec [..., 2]`` along the unit ``normal`` (m/s, > 0: away from the obstacle)
+    and the cosine of their angle (``nan`` for a zero vector)."""
+    comp = (vec * normal).sum(-1)
+    norm = torch.linalg.vector_norm(vec, dim=-1)
+    return comp, torch.where(norm > 0, comp / norm.clamp_min(1e-12), torch.full_like(norm, math.nan))
+
+
+@dataclass
+class CellResult:
+    """One policy x world x variant: per-episode flags and, for obstacle crashes, the forensics."""
+
+    label: str
+    n_uavs: int
+    scenario: str
+    variant: str
+    episodes: dict[str, torch.Tensor]
+    crashes: dict[str, torch.Tensor] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def rates(self) -> dict[str, tuple[int, int, float, float, float]]:
+        """``name -> (k, n, rate, low, high)`` for success, safe success, obstacle crash and UAV contact."""
+        flags = {"success": self.episodes["success"], "safe_success": self.episodes["safe_success"],
+                 "obstacle_crash": self.episodes["crashed"], "uav_contact": self.episodes["uav_contact"]}
+        out = {}
+        for name, f in flags.items():
+            k, n = int(f.sum()), int(f.numel())
+            out[name] = (k, n, k / n, *binomial_ci(k, n))
+        return out
+
+
+def crash_forensics(steps: Mapping[str, torch.Tensor], crash_position: torch.Tensor, obstacles: Obstacles,
+                    cfg: ScenarioConfig) -> dict[str, torch.Tensor]:
+    """What the UAV that hit saw and did in its last ``W`` steps, for ``E`` crashed episodes.
+
+    Args:
+        steps: per episode and step before the crash, oldest first: ``position [E, W, N, 2]``,
+            ``heading [E, W, N]``, ``scan [E, W, N, K]``, ``action [E, W, N, 2]`` (the actor's, in
+            [-1, 1]), ``instinct [E, W, N]`` (the world's flag for that step), ``goal [E, 2]``,
+            and ``valid [E, W]`` (False where the episode is younger than ``W`` steps).
+        crash_position: ``[E, N, 2]`` after the crash step (the crasher is the UAV nearest an obstacle).
+        obstacles: each episode's obstacles (``[E, ...]``).
+
+    Returns:
+        ``[E]`` tensors at the last step before the crash (``*_last``) and over the window
+        (``*_window``): distances, counts and m/s components along the outward normal.
+    """
+    e, w, n = steps["heading"].shape
+    crasher = nearest_obstacle_distance(crash_position, obstacles).argmin(-1)  # [E]
+    flat = lambda t: t.reshape(e * w, *t.shape[2:])  # noqa: E731 (steps as a batch of E * W worlds)
+    position, heading, scan = flat(steps["position"]), flat(steps["heading"]), flat(steps["scan"])
+    goal = steps["goal"].repeat_interleave(w, 0)
+    rep = lambda t: t.repeat_interleave(w, 0)  # noqa: E731
+    obs_ew = Obstacles(rep(obstacles.circles), rep(obstacles.rectangles))
+    who = crasher.repeat_interleave(w)
+    rows = torch.arange(e * w)
+    neighbours = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)[0]
+    _, command, uav, wall = crowd_instinct(position, heading, goal, scan, neighbours, gain=cfg.rep_gain,
+                                          r0=cfg.rep_range, safe_distance=cfg.safe_distance,
+                                          tangential=cfg.tangential, mode="paper")
+    radial = crowd_instinct(position, heading, goal, scan, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
+                            safe_distance=cfg.safe_distance, tangential=False, mode="paper")[2]  # Eq. 26 alone
+    own = action_to_command(flat(steps["action"]), heading)
+    me = position[rows, who]  # [E W, 2]
+    normal = outward_normal(me[:, None], obs_ew)[:, 0]
+    d_true = nearest_obstacle_distance(me[:, None], obs_ew)[:, 0]
+    offsets = position - me[:, None]
+    dist = torch.linalg.vector_norm(offsets, dim=-1)
+    dist[rows, who] = math.inf
+    visible = neighbours.visible[rows, who]
+    # Would other UAVs hide the obstacle from a laser that saw them? Count those within
+    # ``UAV_RADIUS`` of the crasher's shortest beam, between it and the return point.
+    d1, beam_vec = beam_return_offset(scan[rows, who][:, None], heading[rows, who][:, None])
+    unit = beam_vec[:, 0] / d1.clamp_min(1e-12)
+    ahead = (offsets * unit[:, None]).sum(-1)
+    across = (offsets[..., 0] * unit[:, None, 1] - offsets[..., 1] * unit[:, None, 0]).abs()
+    on_beam = (ahead > 0) & (ahead < d1) & (across < UAV_RADIUS) & torch.isfinite(dist)
+    out = {
+        "d_obstacle": d_true,
+        "d_scan1": scan[rows, who].amin(-1),
+        "nearest_uav": dist.amin(-1),
+        "uavs_within_2m": (dist < 2.0).sum(-1).float(),
+        "uavs_within_r0": (dist < cfg.rep_range).sum(-1).float(),
+        "visible_uavs": visible.sum(-1).float(),
+        "uavs_on_shortest_beam": on_beam.sum(-1).float(),
+        "camera_slots_filled": visible.sum(-1).clamp_max(cfg.n_cam).float(),
+        "heading_cos": torch.cos(heading[rows, who]) * normal[:, 0] + torch.sin(heading[rows, who]) * normal[:, 1],
+        "instinct_on": flat(steps["instinct"]).float()[rows, who],
+        "instinct_speed": torch.linalg.vector_norm(command[rows, who], dim=-1),
+        "instinct_uav_speed": torch.linalg.vector_norm(uav[rows, who], dim=-1),
+        "instinct_obstacle_speed": torch.linalg.vector_norm(wall[rows, who], dim=-1),
+    }
+    for name, vec in (("instinct", clip_command(command[rows, who], cfg.v_max)), ("instinct_uav", uav[rows, who]),
+                      ("instinct_uav_radial", radial[rows, who]), ("instinct_obstacle", wall[rows, who]),
+                      ("policy", own[rows, who])):
+        comp, cos = along(vec, normal)
+        out[f"{name}_outward"], out[f"{name}_cos"] = comp, cos
+    valid = steps["valid"].reshape(e * w).float()
+    result = {}
+    for key, value in out.items():
+        v = value.reshape(e, w)
+        result[f"{key}_last"] = v[:, -1]
+        ok = valid.reshape(e, w) * torch.isfinite(v).float()
+        result[f"{key}_window"] = (torch.nan_to_num(v) * ok).sum(-1) / ok.sum(-1).clamp_min(1.0)
+    result["crasher"] = crasher
+    return result
+
+
+def run_cell(handle: PolicyHandle, scenario: str, reading: str, n_uavs: int, variant: str = "paper",
+             n_episodes: int = 100, seed: int = EVAL_SEED, window: int = 5, device: str = "cpu",
+             label: str | None = None) -> CellResult:
+    """Evaluate ``handle`` on ``n_episodes`` seeded episodes of ``scenario`` with ``n_uavs``
+    UAVs under ``variant`` (:data:`VARIANTS`), keeping the last ``window`` steps of every world
+    (a ring buffer, by world), and the :func:`crash_forensics` of the obstacle crashes."""
+    if variant not in VARIANTS:
+        raise ValueError(f"variant must be one of {', '.join(VARIANTS)}; got {variant!r}")
+    overrides, view, mode, instinct_view = VARIANTS[variant]
+    start = time.perf_counter()
+    env = policy_env(handle, scenario, reading, n_episodes, seed, device, {"n_uavs": n_uavs, **overrides},
+                     extras=("physics", "laser", "command"))
+    cfg = env.cfg
+    module = handle.build(env)
+    if view == "allround":
+        module = AllRoundCamera(module)
+    if mode is not None:
+        module = InstinctWrapper(module, cfg, mode, math.pi if instinct_view == "allround" else None)
+    static = Obstacles(torch.tensor(cfg.circles, dtype=torch.float32).reshape(1, -1, 3),
+                       torch.tensor(cfg.rectangles, dtype=torch.float32).reshape(1, -1, 4))
+    b, n, k = n_episodes, cfg.n_uavs, cfg.n_beams
+    ring = {"position": torch.zeros(b, window, n, 2), "heading": torch.zeros(b, window, n),
+            "scan": torch.zeros(b, window, n, k), "action": torch.zeros(b, window, n, 2),
+            "instinct": torch.zeros(b, window, n, dtype=torch.bool)}
+    final_position = torch.zeros(b, n, 2)
+    goal = torch.zeros(b, 2)
+    circles = torch.zeros(b, cfg.random_circles, 3)
+    rectangles = torch.zeros(b, cfg.random_rectangles, 4)
+    moving = torch.zeros(b, cfg.n_moving, 2)
+    ended_at = torch.zeros(b, dtype=torch.long)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.reset()
+        records = td["episode"].clone()
+        rows = torch.arange(b)
+        goal[:] = td["goal"]
+        if cfg.random_circles:
+            circles[:] = td["obstacles", "drawn_circles"]
+        if cfg.random_rectangles:
+            rectangles[:] = td["obstacles", "drawn_rectangles"]
+        step = 0
+        while rows.numel():
+            slot = step % window
+            ring["position"][rows, slot] = td["agents", "position"]
+            ring["heading"][rows, slot] = td["agents", "heading"]
+            ring["scan"][rows, slot] = td["agents", "scan"]
+            out = module(td)
+            # the actor's own action (a wrapper's output is the executed command)
+            action = module.last_action if mode is not None else out[ACTION]
+            ring["action"][rows, slot] = action
+            nxt = env.step(out)["next"]
+            ring["instinct"][rows, slot] = nxt["agents", "instinct"] if mode is None else torch.zeros_like(
+                nxt["agents", "instinct"])
+            if cfg.n_moving:
+                moving[rows] = nxt["obstacles", "position"]
+            step += 1
+            done = nxt["done"].reshape(-1)
+            if bool(done.any()):
+                records[rows[done]] = nxt["episode"][done]
+                final_position[rows[done]] = nxt["agents", "position"][done]
+                ended_at[rows[done]] = step
+                keep = (~done).nonzero().squeeze(-1)
+                if keep.numel():
+                    env, nxt = env.subset(keep), nxt[keep]
+                rows = rows[keep]
+            td = nxt
+    episodes = {key: records[key].clone() for key in ("success", "safe_success", "crashed", "reached", "steps",
+                                                       "d_min_uav")}
+    episodes["uav_contact"] = records["d_min_uav"] < cfg.collision_distance
+    result = CellResult(label or handle.name, n_uavs, cfg.name, variant, episodes)
+    crashed = episodes["crashed"].nonzero().squeeze(-1)
+    if crashed.numel() and mode is None:
+        # the ring in time order, oldest first: slot of the step before the crash is (end - 1) % window
+        order = (ended_at[crashed, None] - window + torch.arange(window)) % window
+        steps_kept = {key: value[crashed[:, None], order] for key, value in ring.items()}
+        steps_kept["goal"] = goal[crashed]
+        steps_kept["valid"] = (ended_at[crashed, None] - window + torch.arange(window)) >= 0
+        obstacles = obstacles_of(static, moving[crashed], cfg.moving_radius, circles[crashed], rectangles[crashed])
+        result.crashes = crash_forensics(steps_kept, final_position[crashed], obstacles, cfg)
+        result.crashes["crash_time"] = ended_at[crashed].float() * cfg.dt
+    result.seconds = time.perf_counter() - start
+    return result
+
+
+def summarise_crashes(crashes: Mapping[str, torch.Tensor]) -> dict[str, float]:
+    """Means (and a few shares) over the crashed episodes of :attr:`CellResult.crashes`."""
+    if not crashes:
+        return {}
+    out = {key: float(torch.nanmean(value.float())) for key, value in crashes.items() if key != "crasher"}
+    out["share_instinct_on_last"] = float((crashes["instinct_on_last"] > 0).float().mean())
+    out["share_instinct_pushes_in_last"] = float(
+        ((crashes["instinct_on_last"] > 0) & (crashes["instinct_outward_last"] < 0)).float().mean())
+    out["share_uav_part_pushes_in_last"] = float((crashes["instinct_uav_outward_last"] < 0).float().mean())
+    out["share_policy_pushes_in_last"] = float((crashes["policy_outward_last"] < 0).float().mean())
+    out["share_beam_hidden_by_uav_last"] = float((crashes["uavs_on_shortest_beam_last"] > 0).float().mean())
+    out["share_crash_first_10s"] = float((crashes["crash_time"] <= 10.0).float().mean())
+    out["n_crashes"] = float(crashes["crash_time"].numel())
+    return out
+
+
+__all__ = ["AllRoundCamera", "CellResult", "InstinctWrapper", "VARIANTS", "along", "binomial_ci",
+           "crash_forensics", "crowd_instinct", "outward_normal", "run_cell", "summarise_crashes"]
+
+
+# ---------------------------------------------------------------------------- the grid
+CRASH_COLUMNS = ("n_crashes", "crash_time", "share_crash_first_10s", "d_scan1_last", "nearest_uav_last",
+                 "uavs_within_2m_last", "uavs_within_r0_last", "visible_uavs_last", "camera_slots_filled_last",
+                 "share_beam_hidden_by_uav_last", "heading_cos_last", "instinct_on_window", "instinct_speed_last",
+                 "instinct_uav_speed_last", "instinct_obstacle_speed_last", "instinct_outward_last",
+                 "instinct_cos_last", "instinct_uav_outward_last", "instinct_uav_radial_outward_last",
+                 "instinct_obstacle_outward_last",
+                 "share_instinct_pushes_in_last", "share_uav_part_pushes_in_last", "policy_outward_last",
+                 "policy_cos_last", "share_policy_pushes_in_last")
+
+
+def pooled(cells: Sequence[CellResult]) -> CellResult:
+    """Several cells (e.g. one per training seed) as one: episodes and crashes concatenated."""
+    first = cells[0]
+    episodes = {k: torch.cat([c.episodes[k] for c in cells]) for k in first.episodes}
+    keys = set.intersection(*(set(c.crashes) for c in cells if c.crashes)) if any(c.crashes for c in cells) else set()
+    crashes = {k: torch.cat([c.crashes[k] for c in cells if c.crashes]) for k in keys}
+    return CellResult(first.label, first.n_uavs, first.scenario, first.variant, episodes, crashes,
+                      sum(c.seconds for c in cells))
+
+
+def diagnose(policies: Mapping[str, Sequence[str]], scenarios: Sequence[str] = ("train", "forest"),
+             sizes: Sequence[int] = (20, 50), variants: Sequence[str] = tuple(VARIANTS), episodes: int = 50,
+             reading: str = "paper_fit", seed: int = EVAL_SEED, device: str = "cpu",
+             log: Callable[[str], None] = print) -> list[CellResult]:
+    """:func:`run_cell` over ``policies`` (label -> checkpoint files, pooled) x ``scenarios`` x
+    ``sizes`` x ``variants``, ``episodes`` per checkpoint and cell."""
+    from ..policies.registry import resolve
+
+    handles = {label: [resolve(p, reading, device=device)[0] for p in paths] for label, paths in policies.items()}
+    cells = []
+    for label, hs in handles.items():
+        for scenario in scenarios:
+            for n in sizes:
+                for variant in variants:
+                    cell = pooled([run_cell(h, scenario, reading, n, variant, episodes, seed, device=device,
+                                            label=label) for h in hs])
+                    cells.append(cell)
+                    r = cell.rates()
+                    log(f"[{len(cells)}] {label} {scenario} N={n} {variant}: success {r['success'][2]:.3f} "
+                        f"safe {r['safe_success'][2]:.3f} obstacle {r['obstacle_crash'][2]:.3f} "
+                        f"uav {r['uav_contact'][2]:.3f} ({cell.seconds:.1f} s)")
+    return cells
+
+
+def rate_rows(cells: Sequence[CellResult]) -> list[dict]:
+    """One row per cell: the four rates with their 95 % intervals and the wall time."""
+    rows = []
+    for c in cells:
+        row = {"policy": c.label, "scenario": c.scenario, "n_uavs": c.n_uavs, "variant": c.variant,
+               "episodes": int(c.episodes["success"].numel())}
+        for name, (k, n, rate, low, high) in c.rates().items():
+            row.update({name: rate, f"{name}_low": low, f"{name}_high": high})
+        row["seconds"] = round(c.seconds, 1)
+        rows.append(row)
+    return rows
+
+
+def crash_rows(cells: Sequence[CellResult]) -> list[dict]:
+    """One row per cell with crashes: :func:`summarise_crashes`' :data:`CRASH_COLUMNS`."""
+    rows = []
+    for c in cells:
+        s = summarise_crashes(c.crashes)
+        if s:
+            rows.append({"policy": c.label, "scenario": c.scenario, "n_uavs": c.n_uavs, "variant": c.variant,
+                         **{k: s[k] for k in CRASH_COLUMNS}})
+    return rows
+
+
+def rate_table(rows: Sequence[dict]) -> list[str]:
+    """Markdown: success, safe success, obstacle crash and UAV contact in %, with 95 % intervals."""
+    pct = lambda r, m: f"{100 * r[m]:.1f} [{100 * r[m + '_low']:.0f}, {100 * r[m + '_high']:.0f}]"  # noqa: E731
+    lines = ["| policy | scenario | N | variant | episodes | success % | safe success % | obstacle crash % | "
+             "UAV contact % |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['policy']} | {r['scenario']} | {r['n_uavs']} | {r['variant']} | {r['episodes']} | "
+                     f"{pct(r, 'success')} | {pct(r, 'safe_success')} | {pct(r, 'obstacle_crash')} | "
+                     f"{pct(r, 'uav_contact')} |")
+    return lines
+
+
+def crash_table(rows: Sequence[dict]) -> list[str]:
+    """Markdown: the crash forensics of the cells with the paper's instinct."""
+    head = ("policy", "scenario", "N", "crashes", "crash t (s)", "<= 10 s", "d_scan1 (m)", "nearest UAV (m)",
+            "UAVs < 2 m", "UAVs < r0", "visible", "beam hidden", "heading . n", "instinct on (1 s)", "v_rep (m/s)",
+            "UAV part (m/s)", "obstacle part (m/s)", "v_rep . n (m/s)", "UAV part . n", "its radial (Eq. 26) . n", "obstacle part . n",
+            "v_rep into obstacle", "policy cmd . n (m/s)", "policy into obstacle")
+    keys = ("n_crashes", "crash_time", "share_crash_first_10s", "d_scan1_last", "nearest_uav_last",
+            "uavs_within_2m_last", "uavs_within_r0_last", "visible_uavs_last", "share_beam_hidden_by_uav_last",
+            "heading_cos_last", "instinct_on_window", "instinct_speed_last", "instinct_uav_speed_last", "instinct_obstacle_speed_last",
+            "instinct_outward_last", "instinct_uav_outward_last", "instinct_uav_radial_outward_last",
+            "instinct_obstacle_outward_last",
+            "share_instinct_pushes_in_last", "policy_outward_last", "share_policy_pushes_in_last")
+    shares = {"share_crash_first_10s", "share_beam_hidden_by_uav_last", "instinct_on_window",
+              "share_instinct_pushes_in_last", "share_policy_pushes_in_last"}
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [r["policy"], r["scenario"], str(r["n_uavs"])]
+        for k in keys:
+            v = r[k]
+            cells.append(f"{int(v)}" if k == "n_crashes" else f"{100 * v:.0f} %" if k in shares else f"{v:.2f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+__all__ += ["CRASH_COLUMNS", "crash_rows", "crash_table", "diagnose", "pooled", "rate_rows", "rate_table"]
