@@ -3,6 +3,7 @@ TorchRL environment."""
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -68,8 +69,7 @@ class FlockingEnv(EnvBase):
     ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``, the episode's drawn
     obstacles ``("obstacles", "drawn_circles")`` and ``("obstacles", "drawn_rectangles")``), ``"command"``
     (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
-    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``; with ``compile_step`` both
-    are strided views, the compiled step storing beams outermost).
+    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``).
 
     The worlds' state is one ``TensorDict[B]`` (:attr:`world`): saving is a clone, a subset
     (:meth:`subset`) an index, a partial reset (``"_reset"``) a masked write of freshly drawn
@@ -137,7 +137,9 @@ class FlockingEnv(EnvBase):
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
         self.check_actions = bool(check_actions)
-        self._transition = (torch.compile(transition, dynamic=False, fullgraph=True) if self.compile_step
+        # Compiled, the step measures every UAV pair and every (beam, obstacle) pair: static shapes.
+        self._transition = (torch.compile(functools.partial(transition, static_shapes=True), dynamic=False,
+                                          fullgraph=True) if self.compile_step
                             else transition)
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .geometry import Obstacles, cast_rays_along, circular_mean, pairwise, relative_angle, wrap
+from .geometry import Obstacles, cast_rays_along, circular_mean, relative_angle, wrap
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
@@ -55,17 +55,18 @@ def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
-               max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+               max_range: float, static_shapes: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """All laser beams of every UAV.
 
     Args:
         position: ``[B, N, 2]``; heading: ``[B, N]``.
+        static_shapes: cast every beam at every obstacle (:func:`~.geometry.cast_rays_along`).
 
     Returns:
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
     """
-    return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range)
+    return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range, static_shapes)
 
 
 def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -200,8 +201,8 @@ class NearPairs:
         return pairs if self.flat is None else pairs.flatten().take(self.flat)
 
 
-def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
-                    ) -> tuple[Neighbours, NearPairs, torch.Tensor]:
+def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
+                    static_shapes: bool = False) -> tuple[Neighbours, NearPairs, torch.Tensor]:
     """:func:`observe_neighbours` for the pairs that can matter: only a UAV closer than
     ``camera_range`` can be seen or push back (the repulsion's ``r0`` is the camera's range).
 
@@ -213,7 +214,8 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     last bit of ``atan2``, which vectorised and scalar code round differently).
     In a spread swarm of 100 UAVs about one pair in ten is in range; where more than a quarter
     of the pairs are (small or dense swarms), packing would cost more than it saves and every
-    pair is kept (``M = N``). Eager code: the packing has data-dependent shapes.
+    pair is kept (``M = N``). With ``static_shapes`` every pair is kept, always: the packing
+    has data-dependent shapes, which ``torch.compile(fullgraph=True)`` cannot trace.
 
     Returns:
         ``(neighbours [B, N, M], where they came from, closest pair [B])`` (``inf`` for one UAV).
@@ -229,7 +231,7 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     closest = torch.sqrt(squared.flatten(-2).amin(-1))
     # A slightly wider net than "distance < camera_range" (the exact test is visibility's).
     near = squared < (camera_range * (1 + 1e-6)) ** 2
-    if 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
+    if static_shapes or 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
         valid = ~torch.eye(n, dtype=torch.bool, device=dev).expand(b, n, n)
         distance = torch.sqrt(squared)
         distance.diagonal(dim1=-2, dim2=-1).fill_(0.0)  # as measured (never valid; S4 noise keeps it finite)
