@@ -112,16 +112,22 @@ def scan_observation(beams: torch.Tensor, n: int, max_range: float,
     return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
 
 
+def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The goal as each UAV sees it: distance ``d_g`` and angle ``alpha_g`` relative to the
+    heading (Eq. 14-15 before normalising), each ``[B, N]``, for a ``goal [B, 2]``."""
+    to_goal = goal[:, None, :] - position
+    return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
+
+
 def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor,
-                     goal_scale: float) -> torch.Tensor:
+                     goal_scale: float, polar: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """``o_g = [min(d_g / d_s, 1), alpha_g / pi]`` (Eq. 14-15, erratum: divide by d_s).
 
     Args:
-        goal: ``[B, 2]``. Returns ``[B, N, 2]``.
+        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``.
     """
-    to_goal = goal[:, None, :] - position
-    d = torch.linalg.vector_norm(to_goal, dim=-1)
-    return torch.stack(((d / goal_scale).clamp_max(1.0), relative_angle(to_goal, heading) / math.pi), -1)
+    d, alpha = polar if polar is not None else goal_polar(position, heading, goal)
+    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), -1)
 
 
 @dataclass
@@ -173,15 +179,22 @@ def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: 
     return (distance < camera_range) & (rel_bearing.abs() <= half_fov) & others
 
 
+def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, heading_j: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What UAV i's camera measures of UAV j at offset ``p_j - p_i = (dx, dy)`` (section 2,
+    Eq. 17 before normalising): distance, bearing relative to i's heading, and
+    ``wrap(phi_i - phi_j)``; all broadcast to the offsets' shape."""
+    return (torch.sqrt(dx * dx + dy * dy), wrap(torch.atan2(dy, dx) - heading_i),
+            wrap(heading_i - heading_j))
+
+
 def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
                        ) -> Neighbours:
     """True camera measurements between all UAV pairs (no occlusion, section 2 decision)."""
     px, py = position[..., 0].contiguous(), position[..., 1].contiguous()
     dx = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
     dy = py[..., None, :] - py[..., :, None]
-    distance = torch.sqrt(dx * dx + dy * dy)
-    rel_bearing = wrap(torch.atan2(dy, dx) - heading[..., None])
-    heading_difference = wrap(heading[..., :, None] - heading[..., None, :])
+    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., :, None], heading[..., None, :])
     return Neighbours(distance, rel_bearing, heading_difference,
                       visibility(distance, rel_bearing, camera_range, half_fov), dx, dy)
 
@@ -233,10 +246,9 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     near = squared < (camera_range * (1 + 1e-6)) ** 2
     if static_shapes or 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
         valid = ~torch.eye(n, dtype=torch.bool, device=dev).expand(b, n, n)
-        distance = torch.sqrt(squared)
-        distance.diagonal(dim1=-2, dim2=-1).fill_(0.0)  # as measured (never valid; S4 noise keeps it finite)
-        rel_bearing = wrap(torch.atan2(dy_all, dx_all) - heading[..., None])
-        heading_difference = wrap(heading[..., :, None] - heading[..., None, :])
+        # Oneself at distance 0, as measured (never valid; S4 noise keeps it finite).
+        distance, rel_bearing, heading_difference = measure_pairs(dx_all, dy_all, heading[..., :, None],
+                                                                  heading[..., None, :])
         visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
         return (Neighbours(distance, rel_bearing, heading_difference, visible, dx_all, dy_all, valid),
                 NearPairs(None, valid), closest)
@@ -253,9 +265,8 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     dx, dy = dx_all.flatten().take(flat), dy_all.flatten().take(flat)
     other = (rows - rows % n)[:, None].repeat(1, width)  # index of UAV j's heading; padding: world's first
     other.view(-1)[at] = bi * n + ji
-    distance = torch.sqrt(dx * dx + dy * dy)
-    rel_bearing = wrap(torch.atan2(dy, dx) - heading[..., None])
-    heading_difference = wrap(heading[..., None] - heading.flatten().take(other.view(b, n, width)))
+    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., None],
+                                                              heading.flatten().take(other.view(b, n, width)))
     visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
     return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid), NearPairs(flat, valid),
             closest)
@@ -360,7 +371,7 @@ def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
 __all__ = [
     "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "observation_size", "state_size",
     "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
-    "beam_directions", "beam_unit_table", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
+    "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "shortest_beams", "smallest",
     "swarm_centre_state", "visibility",
 ]

@@ -21,11 +21,11 @@ import torch
 
 from ..config import ScenarioConfig
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
-from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
+from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, wrap
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
 from .reward import total_reward
-from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, near_neighbours,
+from .sensors import (add_sensor_noise, camera_observation, goal_observation, goal_polar, laser_scan, near_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
 from .state import world_state
 
@@ -108,7 +108,8 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
     true_shortest = shortest_beams(beams, max(cfg.n_scan, 1)) if cfg.noise else sensed_shortest
-    o_g = goal_observation(position, heading, goal, cfg.goal_scale)
+    d_goal, alpha_goal = goal_polar(position, heading, goal)
+    o_g = goal_observation(position, heading, goal, cfg.goal_scale, (d_goal, alpha_goal))
     observation = torch.cat(
         (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest),
          camera_observation(neighbours, cfg.n_cam, cfg.camera_range)), -1)
@@ -119,7 +120,6 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
         safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest)
-    to_goal = goal[:, None] - position
     return {
         "observation": observation,
         "state": critic_state,
@@ -129,8 +129,8 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "instinct_command": repulsion_command,
         "d_scan1": true_shortest[0][..., 0],
         "d_uav1": true_neighbours.nearest_distance(),
-        "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
-        "alpha_goal": relative_angle(to_goal, heading),
+        "d_goal": d_goal,
+        "alpha_goal": alpha_goal,
         "obstacle_distance": nearest_obstacle_distance(position, obstacles),
         "closest_pair": closest,
     }
