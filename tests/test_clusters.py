@@ -21,7 +21,7 @@ from helpers import ROOT, first_fast, run_script, script_env
 
 from flock_torchrl import CheckpointError
 from flock_torchrl.policies.checkpoint import load_checkpoint
-from flock_torchrl.run import trainer
+from flock_torchrl.run import parts, trainer
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
 
@@ -164,7 +164,7 @@ def test_a_bad_checkpoint_is_one_line_naming_it_and_never_suggests_unsafe_loadin
 def test_a_full_disk_says_so_in_one_line_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
     cfg = make_train_config("policy3_g", "tiny", [*TINY, "experiment.max_frames=160",
                                                   "experiment.checkpoint_every_frames=64"])
-    real, calls = trainer.save_checkpoint, {"n": 0}
+    real, calls = parts.save_checkpoint, {"n": 0}
 
     def full_after_one(*args, **kwargs):
         calls["n"] += 1
@@ -172,7 +172,7 @@ def test_a_full_disk_says_so_in_one_line_and_keeps_the_last_checkpoint(tmp_path,
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(trainer, "save_checkpoint", full_after_one)
+    monkeypatch.setattr(parts, "save_checkpoint", full_after_one)
     with pytest.raises(CheckpointError) as info:
         train(cfg, tmp_path / "run")
     message = str(info.value)

@@ -140,3 +140,48 @@ def test_every_test_file_keeps_a_fast_test_and_make_test_leaves_out_only_slow_on
     recipe = {t: make.split(f"\n{t}: ")[1].split("\n\n")[0] for t in ("test", "test-all")}
     assert '-m "not slow"' in recipe["test"] and "-m" not in recipe["test-all"].replace("-m pytest", "")
     assert "make test-all" in (ROOT / ".ci" / "run").read_text()
+
+
+def module_graph() -> dict[str, set[str]]:
+    """Every module of the package -> the package's modules it imports, at the top or inside a
+    function alike (``from .x import name`` counts ``x.name`` where that is a module)."""
+    modules = {".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p
+               for p in PACKAGE.rglob("*.py")}
+    graph = {}
+    for module, path in modules.items():
+        found = set()
+        for name in imports(path):
+            found.add(name if name in modules else name.rsplit(".", 1)[0])
+        package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                stem = ".".join(base + ([node.module] if node.module else []))
+                found.update(f"{stem}.{a.name}" for a in node.names if f"{stem}.{a.name}" in modules)
+        graph[module] = {m for m in found if m in modules and m != module}
+    return graph
+
+
+def test_no_import_circle():
+    """No module imports (directly or through others) a module that imports it back: an import
+    inside a function does not hide a circle from this test. A package's ``__init__`` may import
+    its own modules (that is what it is for): those edges are left out."""
+    graph = module_graph()
+    graph = {m: {d for d in deps if not (d.startswith(m + ".") or m.startswith(d + "."))} for m, deps in graph.items()}
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(module: str) -> None:
+        state[module] = 1
+        stack.append(module)
+        for dep in sorted(graph[module]):
+            if state.get(dep) == 1:
+                raise AssertionError("import circle: " + " -> ".join(stack[stack.index(dep):] + [dep]))
+            if dep not in state:
+                visit(dep)
+        stack.pop()
+        state[module] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module)

@@ -218,11 +218,11 @@ def test_compile_step_compiles_the_env_and_leaves_the_loss_eager():
 
     from flock_torchrl.config import TrainConfig
     from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.run.trainer import _make_env
+    from flock_torchrl.run.trainer import make_env
 
     for mode, step, loss in (("step", True, False), ("loss", False, True)):
         cfg = TrainConfig.from_config(tiny("policy3_g", f"compile={mode}"))
-        env = _make_env(cfg, 2, torch.device("cpu"), 0, os.getpid())
+        env = make_env(cfg, 2, torch.device("cpu"), 0, os.getpid())
         learner = make_learner(env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss)
         assert env.compile_step is step and (learner.loss_fn is not learner.loss) is loss, mode
 

@@ -31,7 +31,7 @@ from tensordict.nn import TensorDictModuleBase
 from ..config import ScenarioConfig, saved_scenario
 from ..io import write_bytes
 from ..world.sensors import observation_size
-from .models import ACTION, OBS, make_actor
+from .models import ACTION, OBS, actor_of_sizes
 
 FORMAT_VERSION = 2
 FORMAT = f"flock_torchrl/checkpoint-v{FORMAT_VERSION}"
@@ -166,18 +166,22 @@ def _version_hint(found: object) -> str:
 
 
 def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike, member: int | None = None) -> Path:
-    """Write the slim, shippable part of a training checkpoint (actor, metadata, config,
-    counters, evaluations, training curve; no optimiser, replay buffer or env state); of a
-    population's checkpoint, member ``member``'s (each member holds those keys itself)."""
+    """Write the slim, shippable part of a training checkpoint (:func:`policy_payload`)."""
+    return save_checkpoint(policy_payload(checkpoint, member), destination, kind="policy")
+
+
+def policy_payload(checkpoint: str | os.PathLike, member: int | None = None) -> dict[str, Any]:
+    """The slim, shippable part of a training checkpoint (actor, metadata, config, counters,
+    evaluations, training curve; no optimiser, replay buffer or env state); of a population's
+    checkpoint, member ``member``'s (each member holds those keys itself)."""
     payload = load_checkpoint(checkpoint, kind="training")
     if member is not None:
         members = payload.get("members") or []
         if not 0 <= member < len(members):
             raise CheckpointError(f"{checkpoint} holds {len(members)} population member(s), not member {member}")
         payload = members[member]
-    slim = {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
+    return {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
             if key in payload}
-    return save_checkpoint(slim, destination, kind="policy")
 
 
 class SharedPolicy(TensorDictModuleBase):
@@ -190,18 +194,20 @@ class SharedPolicy(TensorDictModuleBase):
     def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device = "cpu",
                  origin: str = "the checkpoint") -> None:
         super().__init__()
-        from ..world.env import FlockingEnv
-
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
         self.flock_meta = meta
         try:
             scenario = ScenarioConfig(**saved_scenario(meta["scenario"]))
-            env = FlockingEnv(scenario, num_envs=1, device=device, seed=None)
         except (TypeError, ValueError) as exc:
-            raise CheckpointError(f"{origin}: meta.scenario cannot build its world ({' '.join(str(exc).split())})"
+            raise CheckpointError(f"{origin}: meta.scenario is not a scenario ({' '.join(str(exc).split())})"
                                   ) from None
-        self.actor = make_actor(env, stochastic=meta["stochastic"], hidden=meta["hidden"], depth=meta["depth"])
+        # Sized from what the checkpoint stores (no world is built): the observation of its
+        # scenario, the action box of its action mode (the policy's [-1, 1]^2, or velocities).
+        limit = 1.0 if scenario.action_mode == "policy" else float(scenario.v_max)
+        box = torch.full((2,), limit, device=device)
+        self.actor = actor_of_sizes(observation_size(scenario), -box, box, device=device, stochastic=meta["stochastic"],
+                                    hidden=meta["hidden"], depth=meta["depth"])
         expected = self.actor.state_dict()
         for name in sorted(set(expected) | set(actor_state)):
             want, got = expected.get(name), actor_state.get(name)
@@ -229,4 +235,5 @@ def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu") -> 
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
+           "policy_payload",
            "resolve_path", "save_checkpoint"]

@@ -95,6 +95,9 @@ class _OffPolicy:
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
 
+    def on_frames(self, frames: int) -> None:
+        """Called with the frames of every collected batch; SAC has nothing to anneal (DDPG does)."""
+
     def _gradient_step(self, terms: dict[str, torch.Tensor]) -> None:
         check_finite(terms)
         self.optimizer.zero_grad(set_to_none=True)
@@ -194,6 +197,9 @@ class PPOLearner:
     """PPO (PolicyP-G): clipped objective, GAE on the per-UAV value ``V(x_i)``."""
 
     off_policy = False
+
+    def on_frames(self, frames: int) -> None:
+        """Called with the frames of every collected batch: nothing to anneal."""
 
     def __init__(self, env, cfg: PPOConfig, critic_input: str, compile: bool = False) -> None:
         self.cfg = cfg

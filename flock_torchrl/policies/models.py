@@ -10,6 +10,8 @@ parameters do not depend on N, so a policy trained with 5 UAVs runs S2's 9 as it
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import distributions as D
@@ -68,10 +70,16 @@ def make_actor(env, *, stochastic: bool = True, hidden: int = 128, depth: int = 
     deterministic mode is the tanh of the mean). Deterministic (DDPG): ``tanh(MLP(o))``.
     Sizes come from ``env``'s specs; the module runs with any number of UAVs.
     """
-    n_obs = env.full_observation_spec_unbatched[OBS].shape[-1]
-    n_act = env.full_action_spec_unbatched[ACTION].shape[-1]
     low, high = action_bounds(env)
-    device = env.device
+    return actor_of_sizes(env.full_observation_spec_unbatched[OBS].shape[-1], low, high, device=env.device,
+                          stochastic=stochastic, hidden=hidden, depth=depth, return_log_prob=return_log_prob)
+
+
+def actor_of_sizes(n_obs: int, low: torch.Tensor, high: torch.Tensor, *, device: Any = None, stochastic: bool = True,
+                   hidden: int = 128, depth: int = 2, return_log_prob: bool = False) -> TensorDictModule:
+    """:func:`make_actor` for an observation of ``n_obs`` numbers and the action box
+    ``low, high [n_act]`` (a checkpoint's stored sizes: no env needed)."""
+    n_act = low.shape[-1]
     if not stochastic:
         net = nn.Sequential(shared_mlp(n_obs, n_act, hidden, depth, device), nn.Tanh())
         return TensorDictModule(net, in_keys=[OBS], out_keys=[ACTION])
@@ -105,4 +113,4 @@ def make_value(env, critic_input: str, *, hidden: int = 128, depth: int = 2) -> 
     return ValueOperator(module=net, in_keys=[key], out_keys=[("agents", "state_value")])
 
 
-__all__ = ["ACTION", "LOG_PROB", "OBS", "action_bounds", "make_actor", "make_qvalue", "make_value", "shared_mlp"]
+__all__ = ["ACTION", "LOG_PROB", "OBS", "action_bounds", "actor_of_sizes", "make_actor", "make_qvalue", "make_value", "shared_mlp"]

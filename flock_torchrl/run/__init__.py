@@ -10,7 +10,9 @@ from typing import Any, Iterator
 from . import launch
 from .results import EvaluationResult
 from .rollout import EVAL_SEED, evaluate, evaluate_handle, rollout_episode
-from .trainer import TrainResult, TrainingInterrupted, make_train_config
+from .setup import make_train_config
+from .signals import TrainingInterrupted
+from .trainer import TrainResult
 
 
 @contextlib.contextmanager

@@ -23,24 +23,24 @@ Each member's episodes go to ``<run>/seed<s>/episodes.csv``, its scalars to the 
 from __future__ import annotations
 
 import copy
-import math
-import time
 from pathlib import Path
 from typing import Any, Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType
 
 from ..config import TrainConfig
 from ..policies.population import MemberSampler, PopulationLearner
 from ..world.population import PopulationEnv
-from ..policies.checkpoint import CheckpointError
 from .run_folder import EpisodeLog
-from .trainer import (EPISODE_COLUMNS, TRANSITION_KEYS, Training, agentwise_done, checkpoint_meta, episode_rows,
-                      start_resource_tracker)
+from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, AgentwiseDone, episode_rows
+from .setup import checkpoint_meta
+from .signals import start_resource_tracker
+from .parts import evaluation_row, replay_buffer, restore_buffer
+from .timing import TimeSplit, rates
+from .trainer import Training
 
 def member_meta(meta: dict[str, Any], seed: int) -> dict[str, Any]:
     """A member's checkpoint metadata: the population's, with the member's own seed."""
@@ -58,7 +58,7 @@ class PopulationTraining(Training):
         self.member_episodes = [0] * self.k
         self.member_evaluations: list[list[dict[str, float]]] = [[] for _ in self.seeds]
         self.final: list[dict[str, Any] | None] = [None] * self.k   # a member's frozen result, once final
-        self.split["members"] = 0.0  # per-member bookkeeping (episode rows, snapshots)
+        self.split = TimeSplit("members")  # and per-member bookkeeping (episode rows)
 
     # ---------------------------------------------------------------- the pieces
     def _build(self, payload: dict | None) -> None:
@@ -71,24 +71,17 @@ class PopulationTraining(Training):
                             device=device, compile_step=cfg.compile_step)
         self.envs, self.env = [env], env
         self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds)
-        n = cfg.scenario.n_uavs
-        batch_swarm = max(1, math.ceil(cfg.algo.batch_size / n))
-        capacity = max(batch_swarm, math.ceil(cfg.algo.buffer_size / n))
-        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device),
-                                             sampler=MemberSampler(self.k), batch_size=batch_swarm)
+        self.buffer = replay_buffer(cfg, cfg.scenario.n_uavs, device, sampler=MemberSampler(self.k))
         if payload is not None:
             learner.load_state_dict(payload["learner"])
-            if "buffer" not in payload:
-                raise CheckpointError(f"the checkpoint in {self.run_dir} holds no replay buffer "
-                                      "(experiment.keep_buffer_in_checkpoint=false): it cannot be resumed "
-                                      "exactly; start a new run")
-            self.buffer.load_state_dict(payload["buffer"])
+            restore_buffer(self.buffer, payload, self.run_dir)
             env.set_state(payload["env_state"])
         init_random = max(0, exp.init_random_frames - self.counters["frames"])
         self.collector = Collector(env, learner.collector_policy, track_traj_ids=False,
                                    frames_per_batch=env.num_envs * exp.steps_per_batch, total_frames=-1,
                                    device=device, init_random_frames=init_random * self.k or None,
-                                   exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+                                   exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
+                                   postproc=AgentwiseDone(env.n_agents))
         self.collectors = [self.collector]
         if payload is not None:
             torch.set_rng_state(payload["rng"]["torch"])
@@ -113,8 +106,8 @@ class PopulationTraining(Training):
         (batch,) = batches
         self.counters["frames"] += batch.numel() // self.k
         self.counters["iterations"] += 1
-        batch = agentwise_done(batch, self.env.n_agents)
-        self._episode_rows(batch)
+        with self.split.timer("members"):
+            self._episode_rows(batch)
         self.learner.on_frames(batch.numel() // self.k)
         stats, n_updates = self._learn([batch])
         self.counters["updates"] += n_updates
@@ -129,7 +122,6 @@ class PopulationTraining(Training):
     def _episode_rows(self, batch: TensorDictBase) -> None:
         """Each member's finished episodes as rows of its own episode log (one tensor per column,
         the member of each episode from its world's index)."""
-        start = time.perf_counter()
         done = batch.get(("next", "done")).squeeze(-1)               # [K * B, T]
         if bool(done.any()):
             world, _ = done.nonzero(as_tuple=True)                   # world-major, as the solo log's rows
@@ -145,7 +137,6 @@ class PopulationTraining(Training):
                 self.member_logs[k].write(rows)
                 self.member_recent[k] = (self.member_recent[k] + [(r[2], bool(r[3])) for r in rows])[-100:]
         self.counters["episodes"] = min(self.member_episodes)
-        self.split["members"] += time.perf_counter() - start
 
     def _freeze_finished(self) -> None:
         """A member that spent ``max_episodes`` is final: keep its actor, counters and curve now."""
@@ -174,16 +165,13 @@ class PopulationTraining(Training):
             if recent:
                 log[f"seed{seed}/train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
                 log[f"seed{seed}/train/success_rate"] = sum(s for _, s in recent) / len(recent)
-        rates = [log[f"seed{s}/train/success_rate"] for s in self.seeds if f"seed{s}/train/success_rate" in log]
-        if rates:
-            log["train/success_rate"] = sum(rates) / len(rates)
-        log["perf/member_updates_per_s"] = (self.k * self.counters["updates"]
-                                            / max(self.split["sampling"] + self.split["update"], 1e-9))
-        log["perf/member_frames_per_s"] = (self.k * self.counters["frames"]
-                                           / max(self.split["env"] + self.split["collection"], 1e-9))
+        success = [log[f"seed{s}/train/success_rate"] for s in self.seeds if f"seed{s}/train/success_rate" in log]
+        if success:
+            log["train/success_rate"] = sum(success) / len(success)
+        log.update(rates(self.split, self.counters, self.k, "perf/member_"))
         self._log(log)
-        if self.cfg.progress:
-            self._bar().update(self.counters, log)
+        if self.progress is not None:
+            self.progress.update(self.counters, log)
 
     def _evaluate(self) -> dict[str, float]:
         """Evaluate every member that is not final (a final member's last evaluation stands)."""
@@ -195,8 +183,8 @@ class PopulationTraining(Training):
                 rows.append(self.member_evaluations[k][-1])
                 continue
             self._eval_actor.load_state_dict(final["actor"] if final is not None else self.learner.actor_state(k))
-            row = self._evaluation_row(self._eval_actor,
-                                       final["counters"]["frames"] if final is not None else self.counters["frames"])
+            row = evaluation_row(self.cfg, self._eval_actor,
+                                 final["counters"]["frames"] if final is not None else self.counters["frames"])
             self.member_evaluations[k].append(row)
             self._log({f"seed{seed}/eval/{key}": v for key, v in row.items() if key != "frames"})
             rows.append(row)

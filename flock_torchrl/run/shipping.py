@@ -13,7 +13,7 @@ from types import SimpleNamespace
 from typing import Callable
 
 from ..io import write_text
-from ..policies.checkpoint import LAST, export_policy, load_checkpoint
+from ..policies.checkpoint import LAST, load_checkpoint, policy_payload, save_checkpoint
 from .schedule import Schedule
 
 
@@ -52,17 +52,20 @@ def ship_collection(runs: list[tuple[Path, str, str, int | None]], dest: Path, r
     move to their place) and write ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
     shipped = []
     seen: dict[Path, Path] = {}
+    exported: dict[Path, dict] = {}
     for last, policy, seed, member in runs:
         target = dest / policy / f"{seed}.pt"
         if target in seen:
             raise ValueError(f"{last} and {seen[target]} both hold {policy} {seed}: ship one of them (move the "
                              "other run folder away)")
         seen[target] = last
-        export_policy(last, target, member=member)
-        if load_checkpoint(target, kind="policy")["meta"]["reading"] != reading:
+        slim = policy_payload(last, member)  # read once: checked, written, listed
+        if slim["meta"]["reading"] != reading:
             raise ValueError(f"{last} was trained under another reading than {reading!r}")
+        save_checkpoint(slim, target, kind="policy")
         log(f"{last} -> {target}" + ("" if member is None else f" (member {member})"))
         shipped.append(target)
+        exported[target] = slim
     for legacy in sorted(dest.glob("*_seed*.pt")):
         policy, _, seed = legacy.stem.rpartition("_")
         target = dest / policy / f"{seed}.pt"
@@ -82,7 +85,7 @@ def ship_collection(runs: list[tuple[Path, str, str, int | None]], dest: Path, r
              "| policy | seed | experiment | frames | episodes | updates | minutes | final eval success | safe_success |",
              "|---|---|---|---|---|---|---|---|---|"]
     for path in held:
-        payload = load_checkpoint(path, kind="policy")
+        payload = exported.get(path) or load_checkpoint(path, kind="policy")
         c, ev = payload["counters"], (payload.get("evaluations") or [{}])[-1]
         lines.append(f"| {payload['meta']['policy']} | {path.stem[4:]} | {payload['meta']['experiment']} | {c['frames']} | "
                      f"{c['episodes']} | {c['updates']} | {c['seconds'] / 60:.1f} | "

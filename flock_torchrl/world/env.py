@@ -3,6 +3,7 @@ TorchRL environment."""
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -17,10 +18,9 @@ from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
 from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout
-from .state import STATE_KEYS, check_state, empty_state, fill_absent
+from .state import ACTION, STATE_KEYS, check_like, check_state, checked_action, empty_state, fill_absent
 from .step import noise_draws, sense, transition, world_obstacles
 
-ACTION = ("agents", "action")
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
 EXTRAS = {
     "physics": (("agents", "position"), ("agents", "velocity"), ("agents", "heading"), "goal",
@@ -68,8 +68,7 @@ class FlockingEnv(EnvBase):
     ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``, the episode's drawn
     obstacles ``("obstacles", "drawn_circles")`` and ``("obstacles", "drawn_rectangles")``), ``"command"``
     (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
-    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``; with ``compile_step`` both
-    are strided views, the compiled step storing beams outermost).
+    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``).
 
     The worlds' state is one ``TensorDict[B]`` (:attr:`world`): saving is a clone, a subset
     (:meth:`subset`) an index, a partial reset (``"_reset"``) a masked write of freshly drawn
@@ -137,7 +136,9 @@ class FlockingEnv(EnvBase):
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
         self.check_actions = bool(check_actions)
-        self._transition = (torch.compile(transition, dynamic=False, fullgraph=True) if self.compile_step
+        # Compiled, the step measures every UAV pair and every (beam, obstacle) pair: static shapes.
+        self._transition = (torch.compile(functools.partial(transition, static_shapes=True), dynamic=False,
+                                          fullgraph=True) if self.compile_step
                             else transition)
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
@@ -335,36 +336,9 @@ class FlockingEnv(EnvBase):
         return out
 
     def _checked_action(self, tensordict: TensorDictBase) -> torch.Tensor:
-        """The action of every UAV as a float32 tensor on the env's device, clipped to the
-        action box; anything else is a ``ValueError`` naming the key and what was expected.
-
-        With ``check_actions=False`` the two checks that read tensor values on the host (a
-        device synchronisation) are skipped: finite values, and no world done."""
-        expected = (self.num_envs, self.n_agents, 2)
-        action = tensordict.get(ACTION, None)
-        if action is None:
-            raise ValueError(f"FlockingEnv.step: no {ACTION} entry in the tensordict; expected a float tensor of "
-                             f"shape {list(expected)}")
-        if tuple(action.shape) != expected:
-            raise ValueError(f"FlockingEnv.step: {ACTION} has shape {list(action.shape)}, expected {list(expected)} "
-                             f"(worlds, UAVs, 2)")
-        if not action.is_floating_point():
-            raise ValueError(f"FlockingEnv.step: {ACTION} has dtype {action.dtype}, expected a floating point "
-                             "tensor (float32; other float types are cast)")
-        action = action.to(self.device, torch.float32)
-        limit = 1.0 if self.cfg.action_mode == "policy" else self.cfg.v_max
-        if not self.check_actions:
-            return action.clamp(-limit, limit)
-        finite = torch.isfinite(action).all()
-        done = (self.world["terminated"] | self.world["truncated"]).reshape(-1)
-        if bool(finite & ~done.any()):  # one host synchronisation for both checks
-            return action.clamp(-limit, limit)
-        if not bool(finite):
-            raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
-        worlds = done.nonzero().reshape(-1).tolist()
-        shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
-        raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
-                         "env.step_and_maybe_reset, rollout and collectors do this)")
+        """:func:`~.state.checked_action` of this env's worlds (with ``check_actions``: values too)."""
+        done = (self.world["terminated"] | self.world["truncated"]).reshape(-1) if self.check_actions else None
+        return checked_action(tensordict.get(ACTION, None), self.cfg, self.num_envs, self.device, done)
 
     def set_seed(self, seed: int | None = None, static_seed: bool = False) -> int | None:
         """TorchRL's ``set_seed``; a seed that is not an integer in [0, 2**64 - 1] is a
@@ -398,15 +372,7 @@ class FlockingEnv(EnvBase):
             value = world.get(key)
             if value.is_floating_point() and not bool(torch.isfinite(value).all()):
                 raise ValueError(f"env state: {key!r} contains NaN or inf; a world's state must be finite")
-        for part in ("episode", "sensed"):  # the metrics accumulator and the sensing cache
-            for key, value in reference[part].items(include_nested=True, leaves_only=True):
-                key = (part, *key) if isinstance(key, tuple) else (part, key)
-                got = world.get(key, None)
-                if got is None or got.shape != value.shape:
-                    raise ValueError(f"env state {key!r}: expected shape {list(value.shape)}, got "
-                                     f"{None if got is None else list(got.shape)}")
-                if got.dtype != value.dtype:
-                    raise ValueError(f"env state {key!r}: has dtype {got.dtype}, expected {value.dtype}")
+        check_like(world, reference, ("episode", "sensed"), "env state")  # the metrics and the sensing cache
         world.batch_size = self.batch_size
         self.world = world
         self._generator.set_state(state["generator"])

@@ -36,6 +36,12 @@ import torch
 from ..config import ConfigError, ScenarioConfig
 from .geometry import Obstacles
 
+
+class SpawnError(RuntimeError):
+    """No valid layout exists for a world: no room for the swarm (:mod:`.spawn`) or for the drawn
+    obstacles (here); only possible for configs the checks refused."""
+
+
 BOX = 5  # cx, cy, half_x, half_y, rounding
 # Metres every blocker grows by in the config-time check (computed in float64), against the
 # float32 round-off of the sampler's own test.
@@ -211,14 +217,12 @@ def place_on_cells(cfg: ScenarioConfig, shapes: torch.Tensor, fixed: torch.Tenso
     cell and ``random_clearance / 2`` from the cell's edges, so obstacles in distinct cells are
     ``random_clearance`` apart and ``random_clearance`` from ``fixed``.
 
-    Returns ``[W, M, 5]``; raises :class:`~.spawn.SpawnError` where fewer than ``M`` cells are free
+    Returns ``[W, M, 5]``; raises :class:`SpawnError` where fewer than ``M`` cells are free
     (only possible for a config :func:`check_forest` refused)."""
     w, m, device = shapes.shape[0], shapes.shape[1], shapes.device
     cells = cell_boxes(cfg, shapes.dtype, device)
     free = free_cells(cfg, cells, fixed)                                               # [W, G]
     if bool((free.sum(-1) < m).any()):
-        from .spawn import SpawnError  # spawn imports this module
-
         raise SpawnError(f"fewer than {m} free cells for the drawn obstacles (a config check_forest should refuse)")
     score = torch.where(free, _uniform(free.shape, generator, device), torch.full_like(free, 2.0, dtype=shapes.dtype))
     cell = cells[score.argsort(-1)[:, :m]]                                             # [W, M, 5]
@@ -305,5 +309,5 @@ def check_forest(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, p
                                             "random_circle_radius", "random_rectangle_size")])
 
 
-__all__ = ["blockers", "box_gap", "cell_boxes", "cell_grid", "check_forest", "drawn_count",
+__all__ = ["SpawnError", "blockers", "box_gap", "cell_boxes", "cell_grid", "check_forest", "drawn_count",
            "place_by_rejection", "place_on_cells", "sample_forest"]

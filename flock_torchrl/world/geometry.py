@@ -134,15 +134,15 @@ def cast_rays(
 
 
 def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: Obstacles,
-                    max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+                    max_range: float, static_shapes: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`cast_rays` for rays of unit ``directions [B, N, K, 2]`` from ``origin [B, N, 2]``.
 
     A beam's hit is no closer than the obstacle's surface, so an obstacle farther than
     ``max_range`` returns a distance the cap removes anyway. Eager code therefore casts only the
     (UAV, obstacle) pairs within range, gathered into one batch per obstacle shape (the work
-    follows how many obstacles are near, not B x N x all of them); compiled code
-    (``torch.compile`` needs static shapes) casts every pair by broadcasting. Both give the
-    same distances and indices.
+    follows how many obstacles are near, not B x N x all of them). With ``static_shapes``
+    (what ``torch.compile(fullgraph=True)`` needs: no shape depends on the data) every pair is
+    cast by broadcasting. Both give the same distances and indices.
     """
     b, n, k = directions.shape[:3]
     count = obstacles.count
@@ -151,7 +151,7 @@ def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: O
                 torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
     shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
               (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
-    if torch.compiler.is_compiling():
+    if static_shapes:
         # [B, N, 1, 1, 2] rays against [B, 1, M, 1, d] obstacles -> [B, N, M, K]
         t = torch.cat([cast(origin[:, :, None, None], directions[:, :, None], tensors[:, None, :, None])
                        for tensors, cast, _ in shapes if tensors.shape[-2]], -2)

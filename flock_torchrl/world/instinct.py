@@ -35,23 +35,21 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
 
 
 def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
-                 gain: float, r0: float, tangential: bool = True, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`repulsion` on the offset's components ``dx, dy`` and length ``dist`` (each
-    ``[B, N, M]``), summed over ``M``: ``(v_x, v_y)``, each ``[B, N]``.
-
-    ``dim``: where the candidates ``M`` sit (``0`` for :mod:`.lanes`' ``[M, N, B]``, with
-    ``to_goal`` ``[N, B, 2]``)."""
+                 gain: float, r0: float, tangential: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eq. 26-29 (:func:`repulsion`) on the offset's components ``dx, dy`` and length ``dist``
+    (each ``[B, N, M]``), summed over ``M``: ``(v_x, v_y)``, each ``[B, N]``. The one home of
+    the repulsion's formula: :func:`repulsion` and :func:`instinct_command` call it."""
     counted = active & (dist > 0) & (dist < r0)
     # Per neighbour: v_r = -scale * (dx, dy), scale = gain (r0 - d) / d where counted, else 0.
     scale = torch.where(counted, gain * (r0 - dist) / torch.where(counted, dist, torch.ones_like(dist)),
                         torch.zeros_like(dist))
     rx, ry = -scale * dx, -scale * dy
     if not tangential:
-        return rx.sum(dim), ry.sum(dim)
+        return rx.sum(-1), ry.sum(-1)
     # v_t = rotate(v_r, +90 deg) = (-ry, rx), flipped where it points away from the goal.
-    gx, gy = to_goal[..., 0].unsqueeze(dim), to_goal[..., 1].unsqueeze(dim)
+    gx, gy = to_goal[..., 0, None], to_goal[..., 1, None]
     sign = torch.where(-ry * gx + rx * gy >= 0, 1.0, -1.0)
-    return (rx - sign * ry).sum(dim), (ry + sign * rx).sum(dim)
+    return (rx - sign * ry).sum(-1), (ry + sign * rx).sum(-1)
 
 
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .geometry import Obstacles, cast_rays_along, circular_mean, pairwise, relative_angle, wrap
+from .geometry import Obstacles, cast_rays_along, circular_mean, relative_angle, wrap
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
@@ -55,17 +55,18 @@ def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
-               max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+               max_range: float, static_shapes: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """All laser beams of every UAV.
 
     Args:
         position: ``[B, N, 2]``; heading: ``[B, N]``.
+        static_shapes: cast every beam at every obstacle (:func:`~.geometry.cast_rays_along`).
 
     Returns:
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
     """
-    return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range)
+    return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range, static_shapes)
 
 
 def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -111,16 +112,22 @@ def scan_observation(beams: torch.Tensor, n: int, max_range: float,
     return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
 
 
+def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The goal as each UAV sees it: distance ``d_g`` and angle ``alpha_g`` relative to the
+    heading (Eq. 14-15 before normalising), each ``[B, N]``, for a ``goal [B, 2]``."""
+    to_goal = goal[:, None, :] - position
+    return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
+
+
 def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor,
-                     goal_scale: float) -> torch.Tensor:
+                     goal_scale: float, polar: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
     """``o_g = [min(d_g / d_s, 1), alpha_g / pi]`` (Eq. 14-15, erratum: divide by d_s).
 
     Args:
-        goal: ``[B, 2]``. Returns ``[B, N, 2]``.
+        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``.
     """
-    to_goal = goal[:, None, :] - position
-    d = torch.linalg.vector_norm(to_goal, dim=-1)
-    return torch.stack(((d / goal_scale).clamp_max(1.0), relative_angle(to_goal, heading) / math.pi), -1)
+    d, alpha = polar if polar is not None else goal_polar(position, heading, goal)
+    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), -1)
 
 
 @dataclass
@@ -172,15 +179,22 @@ def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: 
     return (distance < camera_range) & (rel_bearing.abs() <= half_fov) & others
 
 
+def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, heading_j: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What UAV i's camera measures of UAV j at offset ``p_j - p_i = (dx, dy)`` (section 2,
+    Eq. 17 before normalising): distance, bearing relative to i's heading, and
+    ``wrap(phi_i - phi_j)``; all broadcast to the offsets' shape."""
+    return (torch.sqrt(dx * dx + dy * dy), wrap(torch.atan2(dy, dx) - heading_i),
+            wrap(heading_i - heading_j))
+
+
 def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
                        ) -> Neighbours:
     """True camera measurements between all UAV pairs (no occlusion, section 2 decision)."""
     px, py = position[..., 0].contiguous(), position[..., 1].contiguous()
     dx = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
     dy = py[..., None, :] - py[..., :, None]
-    distance = torch.sqrt(dx * dx + dy * dy)
-    rel_bearing = wrap(torch.atan2(dy, dx) - heading[..., None])
-    heading_difference = wrap(heading[..., :, None] - heading[..., None, :])
+    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., :, None], heading[..., None, :])
     return Neighbours(distance, rel_bearing, heading_difference,
                       visibility(distance, rel_bearing, camera_range, half_fov), dx, dy)
 
@@ -200,8 +214,8 @@ class NearPairs:
         return pairs if self.flat is None else pairs.flatten().take(self.flat)
 
 
-def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
-                    ) -> tuple[Neighbours, NearPairs, torch.Tensor]:
+def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
+                    static_shapes: bool = False) -> tuple[Neighbours, NearPairs, torch.Tensor]:
     """:func:`observe_neighbours` for the pairs that can matter: only a UAV closer than
     ``camera_range`` can be seen or push back (the repulsion's ``r0`` is the camera's range).
 
@@ -213,7 +227,8 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     last bit of ``atan2``, which vectorised and scalar code round differently).
     In a spread swarm of 100 UAVs about one pair in ten is in range; where more than a quarter
     of the pairs are (small or dense swarms), packing would cost more than it saves and every
-    pair is kept (``M = N``). Eager code: the packing has data-dependent shapes.
+    pair is kept (``M = N``). With ``static_shapes`` every pair is kept, always: the packing
+    has data-dependent shapes, which ``torch.compile(fullgraph=True)`` cannot trace.
 
     Returns:
         ``(neighbours [B, N, M], where they came from, closest pair [B])`` (``inf`` for one UAV).
@@ -229,12 +244,11 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     closest = torch.sqrt(squared.flatten(-2).amin(-1))
     # A slightly wider net than "distance < camera_range" (the exact test is visibility's).
     near = squared < (camera_range * (1 + 1e-6)) ** 2
-    if 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
+    if static_shapes or 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
         valid = ~torch.eye(n, dtype=torch.bool, device=dev).expand(b, n, n)
-        distance = torch.sqrt(squared)
-        distance.diagonal(dim1=-2, dim2=-1).fill_(0.0)  # as measured (never valid; S4 noise keeps it finite)
-        rel_bearing = wrap(torch.atan2(dy_all, dx_all) - heading[..., None])
-        heading_difference = wrap(heading[..., :, None] - heading[..., None, :])
+        # Oneself at distance 0, as measured (never valid; S4 noise keeps it finite).
+        distance, rel_bearing, heading_difference = measure_pairs(dx_all, dy_all, heading[..., :, None],
+                                                                  heading[..., None, :])
         visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
         return (Neighbours(distance, rel_bearing, heading_difference, visible, dx_all, dy_all, valid),
                 NearPairs(None, valid), closest)
@@ -251,9 +265,8 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     dx, dy = dx_all.flatten().take(flat), dy_all.flatten().take(flat)
     other = (rows - rows % n)[:, None].repeat(1, width)  # index of UAV j's heading; padding: world's first
     other.view(-1)[at] = bi * n + ji
-    distance = torch.sqrt(dx * dx + dy * dy)
-    rel_bearing = wrap(torch.atan2(dy, dx) - heading[..., None])
-    heading_difference = wrap(heading[..., None] - heading.flatten().take(other.view(b, n, width)))
+    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., None],
+                                                              heading.flatten().take(other.view(b, n, width)))
     visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
     return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid), NearPairs(flat, valid),
             closest)
@@ -358,7 +371,7 @@ def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
 __all__ = [
     "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "observation_size", "state_size",
     "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
-    "beam_directions", "beam_unit_table", "goal_observation", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
+    "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "shortest_beams", "smallest",
     "swarm_centre_state", "visibility",
 ]

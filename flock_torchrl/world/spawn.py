@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from ..config import ConfigError, ScenarioConfig
-from .forest import check_forest, sample_forest
+from .forest import SpawnError, check_forest, sample_forest
 from .geometry import Obstacles, distance_to_obstacles, pairwise
 
 # Angular resolution of the config-time check over swarm centres (Eq. 30's chi); the check
@@ -47,10 +47,6 @@ def packing_fraction(cfg: ScenarioConfig) -> float:
 # config check asks for at least this free fraction of their start box in the worst case,
 # so a failure would need spawn_max_tries misses in a row (probability <= 0.8 ** 200).
 _MIN_MOVING_FREE_FRACTION = 0.2
-
-
-class SpawnError(RuntimeError):
-    """No valid layout exists for a world (only possible for configs the check refused)."""
 
 
 @dataclass

@@ -104,5 +104,54 @@ def check_state(cfg: ScenarioConfig, state: Mapping[str, Any], batch: int, what:
             raise ValueError(f"{what}: {key!r} has dtype {value.dtype}, expected {dtype}")
 
 
-__all__ = ["STATE_KEYS", "StateField", "WORLD_STATE", "check_state", "empty_state", "fill_absent", "state_shapes",
-           "world_state"]
+ACTION = ("agents", "action")
+
+
+def checked_action(action: Any, cfg: ScenarioConfig, batch: int, device: torch.device,
+                   done: torch.Tensor | None = None) -> torch.Tensor:
+    """A step's ``action [B, N, 2]`` as float32 on ``device``, clipped to the action box;
+    anything else is a ``ValueError`` naming the key and what was expected.
+
+    ``done [B]`` (the worlds' done flags) asks for the two checks that read tensor values on
+    the host (a device synchronisation): finite values, and no world done; ``None`` skips them."""
+    expected = (batch, cfg.n_uavs, 2)
+    if action is None:
+        raise ValueError(f"FlockingEnv.step: no {ACTION} entry in the tensordict; expected a float tensor of "
+                         f"shape {list(expected)}")
+    if tuple(action.shape) != expected:
+        raise ValueError(f"FlockingEnv.step: {ACTION} has shape {list(action.shape)}, expected {list(expected)} "
+                         f"(worlds, UAVs, 2)")
+    if not action.is_floating_point():
+        raise ValueError(f"FlockingEnv.step: {ACTION} has dtype {action.dtype}, expected a floating point "
+                         "tensor (float32; other float types are cast)")
+    action = action.to(device, torch.float32)
+    limit = 1.0 if cfg.action_mode == "policy" else cfg.v_max
+    if done is None:
+        return action.clamp(-limit, limit)
+    finite = torch.isfinite(action).all()
+    if bool(finite & ~done.any()):  # one host synchronisation for both checks
+        return action.clamp(-limit, limit)
+    if not bool(finite):
+        raise ValueError(f"FlockingEnv.step: {ACTION} contains NaN or inf; actions must be finite")
+    worlds = done.nonzero().reshape(-1).tolist()
+    shown = ", ".join(map(str, worlds[:8])) + (" ..." if len(worlds) > 8 else "")
+    raise ValueError(f"FlockingEnv.step: world(s) {shown} are done; reset them first (TorchRL's "
+                     "env.step_and_maybe_reset, rollout and collectors do this)")
+
+
+def check_like(world: Any, reference: Any, parts: tuple[str, ...], what: str) -> None:
+    """Every leaf of ``reference``'s ``parts`` (TensorDicts) is in ``world`` with its shape and
+    dtype; a ``ValueError`` names the first that is not."""
+    for part in parts:
+        for key, value in reference[part].items(include_nested=True, leaves_only=True):
+            key = (part, *key) if isinstance(key, tuple) else (part, key)
+            got = world.get(key, None)
+            if got is None or got.shape != value.shape:
+                raise ValueError(f"{what} {key!r}: expected shape {list(value.shape)}, got "
+                                 f"{None if got is None else list(got.shape)}")
+            if got.dtype != value.dtype:
+                raise ValueError(f"{what} {key!r}: has dtype {got.dtype}, expected {value.dtype}")
+
+
+__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_like", "check_state", "checked_action",
+           "empty_state", "fill_absent", "state_shapes", "world_state"]

@@ -20,13 +20,12 @@ from typing import Mapping
 import torch
 
 from ..config import ScenarioConfig
-from . import lanes
 from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
-from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, relative_angle, wrap
+from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, wrap
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
 from .reward import total_reward
-from .sensors import (add_sensor_noise, camera_observation, goal_observation, laser_scan, near_neighbours,
+from .sensors import (add_sensor_noise, camera_observation, goal_observation, goal_polar, laser_scan, near_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
 from .state import world_state
 
@@ -67,7 +66,7 @@ def noise_draws(cfg: ScenarioConfig, n_worlds: int, generator: torch.Generator |
 
 
 def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
-          normals: Tensors | None = None) -> dict[str, torch.Tensor]:
+          normals: Tensors | None = None, static_shapes: bool = False) -> dict[str, torch.Tensor]:
     """Everything a step reads from the physical ``state``, for all worlds at once.
 
     ``normals``: the S4 noise's standard normal draws (:func:`~.sensors.sensor_normals`),
@@ -82,16 +81,17 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         ``obstacle_distance`` (true distance to the nearest surface), all ``[B, N]``; and the
         ``closest_pair`` of UAVs ``[B]`` (true), for the metrics.
 
-    Under ``torch.compile`` the same quantities come from :func:`.lanes.sense`, which lays the
-    worlds innermost (the layout inductor's vectorised loops want); this eager code is its twin.
+    ``static_shapes``: no shape depends on the data (every UAV pair, every beam against every
+    obstacle), which ``torch.compile(fullgraph=True)`` needs; otherwise only the pairs and the
+    obstacles within range are measured (eager; what pays in large swarms and forests). The
+    same formulas either way, so the same values up to float round-off.
     """
-    if torch.compiler.is_compiling():
-        return lanes.sense(state, static, cfg, normals)
     position, heading, goal = state["position"], state["heading"], state["goal"]
     obstacles = world_obstacles(state, static, cfg)
-    beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range)
+    beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range, static_shapes)
     # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
-    true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)
+    true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov,
+                                                      static_shapes)
     # The critic's camera sees all round: the same measurements, wider visibility.
     all_round = true_neighbours.with_visibility(
         visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi, pairs.valid))
@@ -108,7 +108,8 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
     true_shortest = shortest_beams(beams, max(cfg.n_scan, 1)) if cfg.noise else sensed_shortest
-    o_g = goal_observation(position, heading, goal, cfg.goal_scale)
+    d_goal, alpha_goal = goal_polar(position, heading, goal)
+    o_g = goal_observation(position, heading, goal, cfg.goal_scale, (d_goal, alpha_goal))
     observation = torch.cat(
         (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest),
          camera_observation(neighbours, cfg.n_cam, cfg.camera_range)), -1)
@@ -119,7 +120,6 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
         safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest)
-    to_goal = goal[:, None] - position
     return {
         "observation": observation,
         "state": critic_state,
@@ -129,27 +129,26 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "instinct_command": repulsion_command,
         "d_scan1": true_shortest[0][..., 0],
         "d_uav1": true_neighbours.nearest_distance(),
-        "d_goal": torch.linalg.vector_norm(to_goal, dim=-1),
-        "alpha_goal": relative_angle(to_goal, heading),
+        "d_goal": d_goal,
+        "alpha_goal": alpha_goal,
         "obstacle_distance": nearest_obstacle_distance(position, obstacles),
         "closest_pair": closest,
     }
 
 
 def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
-            cfg: ScenarioConfig, normals: Tensors | None = None
+            cfg: ScenarioConfig, normals: Tensors | None = None, static_shapes: bool = False
             ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]:
     """One step of every world under ``action [B, N, 2]`` (already checked and clipped).
 
     Returns ``(state, sensed, episode, reward [B, N])`` after the step; ``state`` holds the
     keys of :data:`~.state.WORLD_STATE`, among them the executed ``command``, the ``instinct``
     flags and ``terminated`` / ``truncated`` ``[B, 1]``. Nothing is modified in place.
-    ``normals``: the S4 noise of the new state (:func:`sense`). No host synchronisation, no
-    data-dependent shapes: it compiles whole (``torch.compile(advance, fullgraph=True)``), and
-    compiled it runs as :func:`.lanes.advance` (the worlds innermost), whose eager twin this is.
+    ``normals``: the S4 noise of the new state, ``static_shapes`` how it is sensed (:func:`sense`).
+    With ``static_shapes`` there is no host synchronisation and no data-dependent shape: it
+    compiles whole (``torch.compile(advance, fullgraph=True)``), and run eagerly it is the
+    compiled step's twin.
     """
-    if torch.compiler.is_compiling():
-        return lanes.advance(state, sensed, episode, action, static, cfg, normals)
     if cfg.action_mode == "policy":
         command = action_to_command(action, state["heading"])
     else:  # the action is the velocity command (rule-based controllers)
@@ -168,7 +167,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
             moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
     physical = {"position": position, "heading": heading, "goal": state["goal"], "moving_position": moving_position,
                 "drawn_circles": state["drawn_circles"], "drawn_rectangles": state["drawn_rectangles"]}
-    now = sense(physical, static, cfg, normals)
+    now = sense(physical, static, cfg, normals, static_shapes)
     prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
     d_collision = now["d_scan1"]
     if cfg.collision_reward_source == "min_uav_scan":
@@ -197,10 +196,10 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
 
 
 def transition(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
-               cfg: ScenarioConfig, normals: Tensors | None = None
+               cfg: ScenarioConfig, normals: Tensors | None = None, static_shapes: bool = False
                ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor,
                           dict[str, torch.Tensor]]:
     """:func:`advance`, plus the episode summary the env returns with it
     (:func:`~.metrics.summary_values`): the function the env runs (and compiles) per step."""
-    state, sensed, episode, reward = advance(state, sensed, episode, action, static, cfg, normals)
+    state, sensed, episode, reward = advance(state, sensed, episode, action, static, cfg, normals, static_shapes)
     return state, sensed, episode, reward, summary_values(episode, cfg.collision_distance)

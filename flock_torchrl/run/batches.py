@@ -1,0 +1,66 @@
+"""What a training loop makes of a collector's batch: per-UAV done flags (the collector's
+``postproc``), the replay buffer's items, and the episode log's rows."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+from ..world.metrics import CELL_METRICS
+
+# One row per finished training episode (Fig. 4 reads episode, reward).
+EPISODE_COLUMNS = ("episode", "frames", "reward", "success", "safe_success", *CELL_METRICS, "steps")
+EPISODE_METRICS = ("return", "success", "safe_success", *CELL_METRICS, "steps")
+# Keys a learner needs from a transition; everything else stays out of the replay buffer.
+TRANSITION_KEYS = [("agents", "observation"), ("agents", "state"), ("agents", "action"),
+                   ("agents", "action_log_prob"), ("next", "agents", "observation"), ("next", "agents", "state"),
+                   ("next", "agents", "reward"), ("next", "agents", "done"), ("next", "agents", "terminated"),
+                   ("next", "done"), ("next", "terminated")]
+
+
+def agentwise_done(batch: TensorDictBase, n_agents: int) -> TensorDictBase:
+    """Give the losses per-UAV ``done`` / ``terminated`` (the env shares them across the swarm)."""
+    for key in ("done", "terminated"):
+        value = batch.get(("next", key))
+        batch.set(("next", "agents", key), value.unsqueeze(-2).expand(*value.shape[:-1], n_agents, 1))
+    return batch
+
+
+class AgentwiseDone:
+    """:func:`agentwise_done` as a collector's ``postproc`` (as TorchRL's multi-agent examples
+    attach a done transform): every batch leaves the collector with per-UAV flags."""
+
+    def __init__(self, n_agents: int) -> None:
+        self.n_agents = n_agents
+
+    def __call__(self, batch: TensorDictBase) -> TensorDictBase:
+        return agentwise_done(batch, self.n_agents)
+
+
+def per_uav(batch: TensorDictBase) -> TensorDictBase:
+    """Swarm transitions ``[M]`` (agents ``[M, N]``) as single-UAV ones ``[M * N]`` (agents
+    ``[M * N, 1]``): what a replay buffer shared by several swarm sizes holds. The networks are
+    per UAV and the done flags per UAV (:func:`agentwise_done`), so the losses see the same
+    terms. UAV ``j`` of swarm transition ``m`` lands at row ``m * N + j``."""
+    flat = batch.select(*(k for k in TRANSITION_KEYS if "agents" in k), strict=False).reshape(-1)
+    m, n = flat.get("agents").batch_size
+    out = TensorDict({"agents": TensorDict({}, [m * n, 1]), "next": {"agents": TensorDict({}, [m * n, 1])}},
+                     batch_size=[m * n], device=flat.device)
+    for key in flat.keys(True, True):
+        value = flat.get(key)
+        out.set(key, value.reshape(m * n, 1, *value.shape[2:]))
+    return out
+
+
+def episode_rows(episodes: TensorDictBase, first: int, frames: int) -> list[list[Any]]:
+    """:data:`EPISODE_COLUMNS` rows of finished episodes (``episodes``: their ``"episode"``
+    entries ``[E]``), numbered from ``first + 1``, all counted at ``frames``."""
+    values = torch.stack([episodes[k].double() for k in EPISODE_METRICS], -1).tolist()   # [E, M]
+    return [[first + 1 + i, frames, round(v[0], 5), int(v[1]), int(v[2]), *(round(x, 4) for x in v[3:-1]), int(v[-1])]
+            for i, v in enumerate(values)]
+
+
+__all__ = ["AgentwiseDone", "EPISODE_COLUMNS", "EPISODE_METRICS", "TRANSITION_KEYS", "agentwise_done", "episode_rows",
+           "per_uav"]

@@ -1,0 +1,148 @@
+"""The parts a training run is built from: its envs, collectors and replay buffer, what it
+asks of a learner, its evaluation row, its checkpoint writes and its result."""
+
+from __future__ import annotations
+
+import errno
+import functools
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType
+
+from ..config import TrainConfig
+from ..io import write_failure
+from ..policies.checkpoint import CheckpointError, save_checkpoint
+from ..world.env import FlockingEnv
+from .batches import AgentwiseDone
+from .signals import ignore_stop_signals, start_workers
+from .timing import split_line
+
+
+class Learner(Protocol):
+    """What a training loop asks of a learner (:mod:`~flock_torchrl.policies.learners`, or a
+    population's)."""
+
+    off_policy: bool
+    actor: Any                # the policy it ships (a TensorDictModule)
+    collector_policy: Any     # what the collector acts with (the actor, plus exploration noise)
+
+    def on_frames(self, frames: int) -> None: ...       # frames just collected (noise annealing)
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]: ...
+    def state_dict(self) -> dict[str, Any]: ...
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+
+@dataclass
+class TrainResult:
+    run_dir: Path
+    checkpoint: Path
+    frames: int
+    episodes: int
+    updates: int
+    seconds: float
+    evaluations: list[dict[str, float]] = field(default_factory=list)
+    interrupted: int = 0               # the signal that stopped the run early (0: none)
+    split: dict[str, float] = field(default_factory=dict)  # seconds of this process's loop, by part
+
+    def split_line(self) -> str:
+        """``time split (..): env 10.2 s (31 %), collection ...`` over this process's training loop."""
+        return split_line(self.split)
+
+
+def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, parent: int,
+             scenario: Any = None) -> FlockingEnv:
+    """A training env (in a collector process, one that leaves stop signals to the main process)."""
+    if os.getpid() != parent:
+        ignore_stop_signals()
+    return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
+                       compile_step=cfg.compile_step)
+
+
+def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:
+    """The main process's training envs (one per swarm size when sizes are mixed, the worlds
+    split evenly, seeds ``1000 * seed + i``), and the factory of a worker's env (by seed)."""
+    exp = cfg.experiment
+    factory = functools.partial(make_env, cfg, exp.num_envs // exp.workers, device, parent=os.getpid())
+    if not exp.swarm_sizes:
+        return [factory(cfg.seed * 1000)], factory
+    share = exp.num_envs // len(cfg.train_scenarios)
+    return [make_env(cfg, share, device, cfg.seed * 1000 + i, os.getpid(), scenario)
+            for i, scenario in enumerate(cfg.train_scenarios)], factory
+
+
+def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, policy: Any, steps: int,
+                    init_random: int, device: torch.device) -> list[Any]:
+    """One collector per env (more sizes: stepped in turn, their batches learned from together),
+    each batch leaving it with per-UAV done flags; with ``workers > 1`` one multi-process
+    collector, started where a stop signal cannot reach its workers."""
+    exp = cfg.experiment
+    kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 else exp.num_envs) * steps, total_frames=-1,
+                  device=device, init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
+                  auto_register_policy_transforms=False)
+    def single(env: FlockingEnv) -> Collector:
+        return Collector(env, policy, track_traj_ids=False, postproc=AgentwiseDone(env.n_agents), **kwargs)
+
+    first = start_workers(lambda: MultiSyncCollector(
+        [functools.partial(factory, cfg.seed * 1000 + w) for w in range(exp.workers)], policy,
+        postproc=AgentwiseDone(envs[0].n_agents), **kwargs)) if exp.workers > 1 else single(envs[0])
+    return [first, *(single(env) for env in envs[1:])]
+
+
+def replay_buffer(cfg: TrainConfig, n_uavs: int, device: torch.device, **kwargs: Any) -> TensorDictReplayBuffer:
+    """Swarm transitions of ``n_uavs`` UAVs (1: single-UAV ones): ``batch_size / n_uavs`` of them
+    per sample and ``buffer_size / n_uavs`` held, rounded up."""
+    batch = max(1, math.ceil(cfg.algo.batch_size / n_uavs))
+    capacity = max(batch, math.ceil(cfg.algo.buffer_size / n_uavs))
+    return TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device), batch_size=batch, **kwargs)
+
+
+def restore_buffer(buffer: TensorDictReplayBuffer | None, payload: dict[str, Any], run_dir: Path) -> None:
+    """Refill a run's replay buffer from its checkpoint (refused if the checkpoint holds none)."""
+    if buffer is None:
+        return
+    if "buffer" not in payload:
+        raise CheckpointError(f"the checkpoint in {run_dir} holds no replay buffer "
+                              "(experiment.keep_buffer_in_checkpoint=false): it cannot be resumed exactly; "
+                              "start a new run")
+    buffer.load_state_dict(payload["buffer"])
+
+
+def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float]:
+    """The run's evaluation of ``actor`` (the protocol's summary, its success and return) at ``frames``."""
+    from .rollout import evaluate
+
+    result = evaluate(actor, scenario=cfg.scenario, n_episodes=cfg.experiment.eval_episodes, seed=cfg.eval_seed,
+                      device=cfg.device)
+    row = {k: float(v) for k, v in result.summary().items()}
+    row["success"], row["safe_success"] = row["success_rate"], row["safe_success_rate"]
+    row["return"] = float(result.episodes["return"].double().mean())
+    row["frames"] = frames
+    return row
+
+
+def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
+    """:func:`~flock_torchrl.policies.checkpoint.save_checkpoint` of a training run; a write
+    that fails (a full disk, a lost mount) is a :class:`CheckpointError` naming the fix."""
+    try:
+        return save_checkpoint(state, path, kind="training")
+    except OSError as exc:
+        failure = write_failure(OSError(exc.errno, exc.strerror, str(path)))
+        if failure is None:
+            raise
+        exists = path.exists()
+        kept = f"the last good checkpoint is {path}" if exists else "no checkpoint yet"
+        fix = "free some space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "fix that"
+        raise CheckpointError(f"{failure} ({os.strerror(exc.errno)}); {kept}; {fix} and "
+                              f"{'resume' if exists else 'run again'}") from None
+
+
+__all__ = ["Learner", "TrainResult", "evaluation_row", "make_collectors", "make_env", "make_envs", "replay_buffer",
+           "restore_buffer", "write_checkpoint"]

@@ -1,0 +1,257 @@
+"""Stop signals (SIGINT, SIGTERM, SIGHUP), in one module: what a run does on each.
+
+* In the training loop (:class:`Signals`): the first signal finishes the current update,
+  writes a checkpoint and stops with exit status 128 + the signal, printing the command that
+  resumes; a second Ctrl-C aborts at once (:class:`Stopped`). While :attr:`Signals.abort` is
+  set (the checkpoint is current, e.g. during the final evaluation) the first one stops at once.
+* Collector processes ignore them (:func:`ignore_stop_signals`): the main process alone decides
+  when the run stops, and :func:`shutdown` stops the collector, a watchdog bounding the wait.
+* Worker processes start where a signal cannot reach them half-started (:func:`start_workers`).
+* Multiprocessing's resource tracker starts with them ignored (:func:`start_resource_tracker`).
+
+* In an app (:func:`note_until_checked`, :func:`arm`): before the run is checked (Hydra
+  composing, a config converting) a signal is only noted, since an exception raised at an
+  arbitrary bytecode there could break a library's clean-up and surface as another error;
+  once the run is checked a noted signal stops the process, and later ones raise
+  :class:`Stopped` at once. ``scripts/train.py`` notes signals itself while Python imports torch
+  and the package (before this module can be imported) and hands them to the app.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
+# Seconds the main process waits for collector processes to stop before killing them.
+SHUTDOWN_TIMEOUT = 30.0
+
+
+class Stopped(BaseException):
+    """A stop signal that cannot wait for the end of the update."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+class TrainingInterrupted(Exception):
+    """The run was stopped by a signal after writing its checkpoint (``result``: its
+    :class:`~.trainer.TrainResult`; ``command``: the one that resumes it)."""
+
+    def __init__(self, signum: int, result: Any, command: str) -> None:
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+        self.signum, self.result, self.command = signum, result, command
+
+    @property
+    def exit_status(self) -> int:
+        return 128 + int(self.signum)
+
+
+class Signals:
+    """The training loop's handlers: the first signal sets :attr:`received` (the loop stops after
+    its update and checkpoints); a second one, or any while :attr:`abort` is set, raises
+    :class:`Stopped`. Outside the main thread nothing is installed."""
+
+    def __init__(self) -> None:
+        self.received = 0
+        self.abort = False
+        self.previous: dict[int, Any] = {}
+
+    def __enter__(self) -> "Signals":
+        if threading.current_thread() is threading.main_thread():
+            for signum in STOP_SIGNALS:
+                self.previous[signum] = signal.signal(signum, self.handle)
+        return self
+
+    def handle(self, signum: int, frame: Any) -> None:
+        if self.received or self.abort:
+            self.received = self.received or signum
+            raise Stopped(self.received)
+        self.received = signum
+        print(f"\n{signal.Signals(signum).name} received: finishing this update and writing a checkpoint "
+              "(Ctrl-C again aborts at once)", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc: Any) -> None:
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler)
+
+
+def ignore_stop_signals() -> None:
+    """In a collector process: the main process alone decides when the run stops."""
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+
+
+def shutdown(collector: Any, timeout: float = SHUTDOWN_TIMEOUT) -> None:
+    """Stop a collector; kill its processes if they do not stop within ``timeout`` seconds."""
+    worker = threading.Thread(target=collector.shutdown, daemon=True)
+    worker.start()
+    worker.join(timeout)
+    if worker.is_alive():
+        for proc in getattr(collector, "procs", []) or []:
+            if proc.is_alive():
+                proc.kill()
+
+
+def start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker with the stop signals ignored: it blocks SIGINT
+    and SIGTERM itself, but a SIGHUP to the process group (a closed terminal, an ssh drop)
+    would kill it, and its replacement then prints tracebacks for every shared block."""
+    from multiprocessing import resource_tracker
+
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def abandon_queues() -> None:
+    """Let the process exit after its workers were killed: TorchRL's weight-sync schemes are shut
+    down now (their finalizer puts on a queue, which starts a thread: impossible once Python
+    exits), and no queue waits to flush to a reader that is gone."""
+    import gc
+    from multiprocessing.queues import Queue
+
+    from torchrl.weight_update import WeightSyncScheme
+
+    gc.collect()
+    for obj in gc.get_objects():
+        kind = type(obj)  # type(): some objects warn when asked for __class__
+        if issubclass(kind, WeightSyncScheme):
+            try:
+                obj.shutdown()
+            except Exception:  # its workers are gone: what it could not send does not matter
+                pass
+    for obj in gc.get_objects():
+        if issubclass(type(obj), Queue):
+            obj.cancel_join_thread()
+
+
+def start_workers(make: Any, poll: float = 0.05, grace: float = 5.0) -> Any:
+    """``make()`` (a multi-process collector) built in a thread whose stop signals are blocked.
+
+    A signal to the process group (a terminal's Ctrl-C, Slurm's SIGTERM, a dropped ssh
+    connection) reaches every process of a run; a TorchRL collector worker that gets it while it
+    starts dies before it reports, and the collector then raises ``Worker 0 failed to
+    initialize`` and hangs in its shutdown. Here the worker processes inherit the block, so a
+    signal never kills one half-started. The main thread keeps taking signals: on one, it kills
+    the workers started so far and raises :class:`Stopped` at once (nothing was trained or
+    written yet; a resumed run's checkpoint is untouched)."""
+    import multiprocessing
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        return make()
+    before = set(multiprocessing.active_children())
+    box: dict[str, Any] = {}
+
+    def build() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            box["collector"] = make()
+        except BaseException as exc:  # handed to the main thread
+            box["error"] = exc
+
+    received: list[int] = []
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
+                for signum in STOP_SIGNALS}
+    try:
+        thread = threading.Thread(target=build, name="collector-start", daemon=True)
+        thread.start()
+        while thread.is_alive() and not received:
+            thread.join(poll)
+        if received:
+            deadline = time.monotonic() + grace
+            while True:  # the thread may start another worker until it fails
+                for proc in set(multiprocessing.active_children()) - before:
+                    proc.kill()
+                if not thread.is_alive() or time.monotonic() > deadline:
+                    break
+                thread.join(poll)
+            box.clear()  # the half-built collector: its finalizers run now, not while Python exits
+            abandon_queues()
+            raise Stopped(received[0])
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if "error" in box:
+        raise box["error"]
+    return box["collector"]
+
+
+# ---------------------------------------------------------------------------- the apps
+# Signals noted before the run was checked, and the process that started the app (a launcher's
+# worker processes keep their own handlers).
+NOTED: list[int] = []
+_app = {"pid": 0}
+# Set in a joblib worker whose job a signal stopped: its later jobs do not start. (An environment
+# variable: the launcher pickles the task by value.)
+STOPPED_WORKER = "FLOCK_TORCHRL_SWEEP_STOPPED"
+# A launcher that runs the jobs in worker processes of this one (joblib): the variable names
+# this process, so that a job knows that its sweep's parent waits for every job.
+SWEEP_PARENT = "FLOCK_TORCHRL_SWEEP_PARENT"
+
+
+def note(signum: int, frame: Any = None) -> None:
+    NOTED.append(signum)
+
+
+def stop(signum: int, frame: Any = None) -> None:
+    raise Stopped(signum)
+
+
+def note_until_checked(noted: Any = ()) -> None:
+    """An app starts in this process: until its run is checked, a stop signal is only noted
+    (``noted``: those a script noted while it imported the package)."""
+    _app["pid"] = os.getpid()
+    NOTED.clear()
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, note)
+    NOTED.extend(noted or [])  # after the handlers moved here, so none is lost between
+
+
+def arm(jobs_elsewhere: bool = False) -> None:
+    """The run is checked: stop on a noted signal, and at once on later ones (in the process
+    that started the app). With ``jobs_elsewhere`` (a joblib sweep), later signals are only
+    noted: the workers stop their jobs, each with its checkpoint and its resume line, and this
+    process waits for all of them and then exits with 128 + the signal (:func:`sweep_stopped`)."""
+    if _app["pid"] != os.getpid():
+        return
+    if NOTED:
+        raise Stopped(NOTED[0])
+    if jobs_elsewhere:
+        os.environ[SWEEP_PARENT] = str(os.getpid())
+        return
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, stop)
+
+
+def in_sweep_worker() -> bool:
+    """This process runs a job for a sweep's parent that waits for every job (joblib)."""
+    return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and _app["pid"] != os.getpid()
+
+
+def worker_stopped_by() -> int:
+    """The signal that stopped an earlier job of this sweep worker (0: none)."""
+    return int(os.environ.get(STOPPED_WORKER, "0") or 0)
+
+
+def mark_worker_stopped(signum: int) -> None:
+    os.environ[STOPPED_WORKER] = str(int(signum))
+
+
+def sweep_stopped() -> int:
+    """In a joblib sweep's parent: the signal its jobs were stopped by (0: none)."""
+    return NOTED[0] if NOTED and os.environ.get(SWEEP_PARENT) == str(os.getpid()) else 0
+
+
+__all__ = ["NOTED", "STOPPED_WORKER", "SWEEP_PARENT", "arm", "in_sweep_worker", "mark_worker_stopped", "note",
+           "note_until_checked", "stop", "sweep_stopped", "worker_stopped_by",
+           "SHUTDOWN_TIMEOUT", "STOP_SIGNALS", "Signals", "Stopped", "TrainingInterrupted", "ignore_stop_signals",
+           "shutdown", "start_resource_tracker", "start_workers"]
