@@ -34,7 +34,7 @@ from ..policies.registry import PolicyHandle
 from ..run.rollout import policy_env
 from ..world.dynamics import action_to_command, clip_command
 from ..world.geometry import Obstacles, nearest_obstacle_distance
-from ..world.instinct import repulsion_xy
+from ..world.instinct import instinct_parts
 from ..world.sensors import Neighbours, beam_return_offset, near_neighbours, smallest
 from ..world.step import obstacles_of
 
@@ -87,30 +87,25 @@ def crowd_instinct(position: torch.Tensor, heading: torch.Tensor, goal: torch.Te
     """
     if mode not in ("paper", "nearest", "saturated", "no_push_in"):
         raise ValueError(f"mode must be paper, nearest, saturated or no_push_in; got {mode!r}")
-    d_scan1, wall = beam_return_offset(beams, heading)
-    to_goal = goal[:, None, :] - position
-    visible = neighbours.visible
+    pushing = neighbours.visible
     if mode == "nearest":
-        key = torch.where(visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
+        key = torch.where(pushing, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
         kth = smallest(key, min(k, key.shape[-1]))[0][..., -1:]
-        visible = visible & (key <= kth)
-    ux, uy = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance, visible, to_goal, gain, r0, tangential)
-    uav = torch.stack((ux, uy), -1)
-    wx, wy = repulsion_xy(wall[..., 0, None], wall[..., 1, None], d_scan1[..., None],
-                          torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential)
-    obstacle = torch.stack((wx, wy), -1)
+        pushing = pushing & (key <= kth)
+    # The switch, the UAVs' push and the obstacle's push are the world's (world/instinct.py).
+    triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
+                                              safe_distance=safe_distance, tangential=tangential, pushing=pushing)
     if mode == "saturated":
         limit = gain * (r0 - safe_distance) if cap is None else cap
         norm = torch.linalg.vector_norm(uav, dim=-1, keepdim=True)
         uav = uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
     elif mode == "no_push_in":
         # outward normal of the obstacle the laser sees: from its return point back to the UAV
+        d_scan1, wall = beam_return_offset(beams, heading)
         seen = (d_scan1 > 0) & (d_scan1 < r0)
         normal = -wall / d_scan1.clamp_min(1e-12)[..., None]
         inward = (uav * normal).sum(-1, keepdim=True).clamp_max(0.0)
         uav = torch.where(seen[..., None], uav - inward * normal, uav)
-    nearest = torch.where(neighbours.visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
-    triggered = torch.minimum(nearest.amin(-1), d_scan1) <= safe_distance
     return triggered, uav + obstacle, uav, obstacle
 
 

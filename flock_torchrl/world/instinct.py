@@ -52,11 +52,11 @@ def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active:
     return (rx - sign * ry).sum(-1), (ry + sign * rx).sum(-1)
 
 
-def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
-                     neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
-                     tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The instinct's switch and command, from what the UAV senses (specification section 3).
+def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
+                   neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float, tangential: bool,
+                   shortest: tuple[torch.Tensor, torch.Tensor] | None = None, pushing: torch.Tensor | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The instinct's switch and its two parts, from what the UAV senses (specification section 3).
 
     The UAV switches to repulsion when ``min(d_uav1, d_scan1) <= d_safe``; the repulsion sums
     over visible UAVs and one virtual UAV at the return point of the shortest beam.
@@ -65,15 +65,29 @@ def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.
         position: ``[B, N, 2]``; heading ``[B, N]``; goal ``[B, 2]``; beams ``[B, N, K]`` (as sensed);
         neighbours: camera measurements (as sensed).
         shortest: ``shortest_beams(beams, k)`` if already known.
+        pushing: ``[B, N, M]``, the camera neighbours that push (default: every visible one; the
+            switch always reads every visible one). Variants beyond the paper narrow it.
 
     Returns:
-        ``(triggered [B, N] bool, command [B, N, 2])`` (the command is not yet clipped).
+        ``(triggered [B, N] bool, uav_part [B, N, 2], obstacle_part [B, N, 2])``: the pushes of
+        the UAVs and of the virtual UAV on the obstacle (not yet summed or clipped).
     """
     d_scan1, wall_offset = beam_return_offset(beams, heading, shortest)
     to_goal = goal[:, None, :] - position
-    ux, uy = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance, neighbours.visible, to_goal, gain, r0,
-                          tangential)
+    ux, uy = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance,
+                          neighbours.visible if pushing is None else pushing, to_goal, gain, r0, tangential)
     wx, wy = repulsion_xy(wall_offset[..., 0, None], wall_offset[..., 1, None], d_scan1[..., None],
                           torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential)
     triggered = torch.minimum(neighbours.nearest_distance(), d_scan1) <= safe_distance
-    return triggered, torch.stack((ux + wx, uy + wy), -1)
+    return triggered, torch.stack((ux, uy), -1), torch.stack((wx, wy), -1)
+
+
+def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
+                     neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
+                     tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The instinct's switch and command (:func:`instinct_parts` summed): ``(triggered [B, N]
+    bool, command [B, N, 2])``, the command not yet clipped."""
+    triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
+                                              safe_distance=safe_distance, tangential=tangential, shortest=shortest)
+    return triggered, uav + obstacle
