@@ -10,8 +10,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parent.parent / "flock_torchrl"
 ROOT = PACKAGE.parent
 TOOLS = [*(ROOT / "benchmarks").rglob("*.py"), *(ROOT / "scripts").glob("*.py")]
-LAYERS = ["config", "io", "world", "policies", "run", "report", "cli"]
-RANK = {"config": 0, "io": 0, "world": 1, "policies": 2, "run": 3, "report": 4, "cli": 5}
+LAYERS = ["config", "io", "world", "policies", "run", "report", "prerun", "cli"]
+RANK = {"config": 0, "io": 0, "world": 1, "policies": 2, "run": 3, "report": 4, "prerun": 5, "cli": 5}
 
 
 def layer_of(module: str) -> str:
