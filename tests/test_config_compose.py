@@ -200,3 +200,26 @@ def test_reading_is_one_choice_in_every_app():
 
 def test_algo_schemas_cover_every_algo_yaml():
     assert set(available("algo")) == set(ALGO_SCHEMAS)
+
+
+def test_every_train_composition_keeps_the_values_main_composed():
+    """conf/train.yaml for every policy x experiment x reading composes exactly the values it
+    composed before configuration became a package and the learner settings moved into the
+    experiment files (tests/data/composed_train_configs.json, written from main by
+    tests/data/make_composed_reference.py before the change)."""
+    import json
+    from pathlib import Path
+
+    from flock_torchrl.config import shipped_checkpoints_dir
+
+    reference = json.loads((Path(__file__).parent / "data" / "composed_train_configs.json").read_text())
+    nodes, compositions = reference["nodes"], reference["compositions"]
+    assert len(compositions) == 12 * 6 * 2
+    shipped = str(shipped_checkpoints_dir())
+    for name, entry in compositions.items():
+        policy, experiment, reading = name.split("/")
+        cfg = compose("train", [f"policy={policy}", f"experiment={experiment}", f"reading={reading}"])
+        tree = json.loads(json.dumps(OmegaConf.to_container(cfg, resolve=True)).replace(shipped, "<checkpoints>"))
+        assert set(tree) == set(entry), name
+        for key, digest in entry.items():
+            assert tree[key] == nodes[digest], f"{name}: {key}"

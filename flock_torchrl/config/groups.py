@@ -38,8 +38,8 @@ class PolicyConfig(Schema):
 
 @dataclass
 class ExperimentConfig(Schema):
-    """How long and how fast to train; its own learner settings: ``conf/learner/<experiment>/<algo>.yaml``,
-    named in the experiment file's defaults list."""
+    """How long and how fast to train; its learner settings over the paper's Table I (``conf/algo``):
+    ``conf/tuning/<algo>_<experiment>.yaml``, where it has one."""
 
     prefix: ClassVar[str] = "experiment"
 

@@ -1,5 +1,5 @@
 """The learners' configurations (``conf/algo/*.yaml``): one typed schema per learner, chosen by
-its ``name``; an experiment's own settings for a learner sit in ``conf/learner/<experiment>/``."""
+its ``name``; an experiment's own settings for a learner: ``conf/tuning/<algo>_<experiment>.yaml``."""
 
 from __future__ import annotations
 
