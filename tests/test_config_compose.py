@@ -223,3 +223,25 @@ def test_every_train_composition_keeps_the_values_main_composed():
         assert set(tree) == set(entry), name
         for key, digest in entry.items():
             assert tree[key] == nodes[digest], f"{name}: {key}"
+
+
+def test_app_config_composes_an_apps_config_from_names_and_values_and_checks_it():
+    from pathlib import Path
+
+    from flock_torchrl.config import ReproduceConfig, RunOptions, app_config
+
+    cfg = app_config("reproduce", table=4, reading="literal", episodes=7, only=["Policy-MA"],
+                     checkpoints_dir=Path("/tmp/none"))
+    assert isinstance(cfg, ReproduceConfig) and cfg.is_checked
+    assert (cfg.table, cfg.scenario.reading, cfg.episodes, cfg.only) == (4, "literal", 7, ["Policy-MA"])
+    assert cfg.seed == EVAL_SEED and cfg.paper_recipe_dir == "/tmp/none/literal/paper_recipe"  # interpolations follow
+    with pytest.raises(ConfigError) as info:
+        app_config("reproduce", table=6)
+    assert info.value.key == "table"
+    # The run options every app shares are checked in one place (RunOptions), under the same keys.
+    for app in ("train", "evaluate", "reproduce", "figures", "scaling", "tune_baselines"):
+        assert issubclass(type(app_config(app)), RunOptions), app
+        for key, bad in (("seed", -1), ("device", "gpu0"), ("threads", -2)):
+            with pytest.raises(ConfigError) as info:
+                app_config(app, **{key: bad})
+            assert info.value.key == key, (app, key)
