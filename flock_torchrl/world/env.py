@@ -57,23 +57,6 @@ def _device(device: Any) -> torch.device:
     return dev
 
 
-def resolve_scenario(scenario: ScenarioConfig | str, reading: str | None = None, policy_id: str | None = None,
-                     overrides: Mapping[str, Any] | None = None) -> ScenarioConfig:
-    """The env's checked scenario: a :class:`ScenarioConfig` as given (checked once), or a
-    scenario's name (with a reading, a policy's fields and field overrides) composed by
-    :func:`flock_torchrl.config.compose.scenario_config`, the one helper that resolves names. The
-    world imports only the Hydra-free :mod:`flock_torchrl.config.scenario`; the composer is
-    imported here, when a name is given."""
-    if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
-        return scenario if scenario.is_checked else scenario.check()
-    if not isinstance(scenario, (str, ScenarioConfig)):
-        raise TypeError(f"scenario must be a ScenarioConfig or a scenario's name, got {type(scenario).__name__} "
-                        "(flock_torchrl.scenario_config(...) makes one from a mapping)")
-    from ..config.compose import scenario_config
-
-    return scenario_config(scenario, reading=reading, policy=policy_id, **dict(overrides or {}))
-
-
 class FlockingEnv(EnvBase):
     """Multi-UAV flocking (Bai et al. 2024) as a batched, torch-native TorchRL environment.
 
@@ -96,8 +79,8 @@ class FlockingEnv(EnvBase):
     Args:
         scenario: a :class:`~flock_torchrl.config.ScenarioConfig` (checked here unless it is
             already: ``scenario_config(...)`` and the apps hand over checked ones), or a name under
-            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``), resolved with
-            ``reading``, ``policy_id`` and ``overrides`` by :func:`resolve_scenario`.
+            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``), composed with
+            ``reading``, ``policy_id`` and ``overrides`` by :func:`flock_torchrl.config.scenario_config`.
         num_envs: batch size ``B``.
         device: torch device of every tensor.
         seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles).
@@ -132,7 +115,15 @@ class FlockingEnv(EnvBase):
                  device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
                  policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
                  check_actions: bool = True, **overrides: Any) -> None:
-        cfg = resolve_scenario(scenario, reading, policy_id, overrides)
+        if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
+            cfg = scenario if scenario.is_checked else scenario.check()  # checked once
+        elif isinstance(scenario, (str, ScenarioConfig)):  # a name: the one helper composes it (Hydra)
+            from ..config.compose import scenario_config
+
+            cfg = scenario_config(scenario, reading=reading, policy=policy_id, **overrides)
+        else:
+            raise TypeError(f"scenario: a ScenarioConfig or a scenario's name, got {type(scenario).__name__} "
+                            "(flock_torchrl.scenario_config(mapping) checks a mapping)")
         check_spawn_feasible(cfg)
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
