@@ -25,7 +25,7 @@ from hydra.initialize import get_gh_backup, restore_gh_from_backup
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from .apps import APP_SCHEMAS
+from .apps import APP_SCHEMAS, EvaluateConfig, TrainConfig
 from .checks import ConfigError, Schema, config_error, safe_name
 from .groups import ExperimentConfig, LoggerConfig, PolicyConfig
 from .learners import ALGO_SCHEMAS
@@ -49,6 +49,22 @@ RESOLVERS = {
 }
 
 
+# As Hydra root configs, the apps' ``algo`` is left untyped: the learner's own YAML types it
+# (``/sac_schema@_here_`` in conf/algo/sac.yaml), and a run's resume.yaml, which saves it as plain
+# values, composes too; :meth:`WorldApp.structured` types it when the config is checked.
+@dataclasses.dataclass
+class _TrainRoot(TrainConfig):
+    algo: Any = None
+
+
+@dataclasses.dataclass
+class _EvaluateRoot(EvaluateConfig):
+    algo: Any = None
+
+
+HYDRA_ROOTS: dict[str, type] = {**APP_SCHEMAS, "train": _TrainRoot, "evaluate": _EvaluateRoot}
+
+
 def register() -> None:
     """The resolvers, and every schema in Hydra's ConfigStore as a root config (``<name>_schema``):
     the YAMLs name them in their defaults lists (a group's file as ``/scenario_schema@_here_``), so
@@ -57,9 +73,9 @@ def register() -> None:
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, resolver)
     cs = ConfigStore.instance()
-    schemas: dict[str, type[Schema]] = {"scenario": ScenarioConfig, "policy": PolicyConfig,
+    schemas: dict[str, type] = {"scenario": ScenarioConfig, "policy": PolicyConfig,
                                         "experiment": ExperimentConfig, "logger": LoggerConfig,
-                                        **ALGO_SCHEMAS, **APP_SCHEMAS}
+                                        **ALGO_SCHEMAS, **HYDRA_ROOTS}
     for name, schema in schemas.items():
         cs.store(name=f"{name}_schema", node=schema)
 
@@ -222,6 +238,6 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-__all__ = ["GROUPS", "RESOLVERS", "app_config", "compose", "compose_world", "default_checkpoints_dir",
+__all__ = ["GROUPS", "HYDRA_ROOTS", "RESOLVERS", "app_config", "compose", "compose_world", "default_checkpoints_dir",
            "eval_seed", "flatten", "hydra_key", "plain", "register", "saved_scenario", "scenario_config",
            "scenario_overrides", "world_values"]
