@@ -263,8 +263,9 @@ def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_
     (the training scenario's scaling.* stay as they are)."""
     from flock_torchrl.report.scaling import scaling
 
-    rows = scaling("policy3_g", "paper_fit", [3], 1, out_dir=tmp_path, log=lambda message: None,
-                   others=["policy_ma", "policy_op"], scenario="forest")
+    cfg = app_config("scaling", reading="paper_fit", scenario="forest", policy_name="policy3_g", sizes=[3],
+                     episodes=1, others=["policy_ma", "policy_op"])
+    rows = scaling(cfg, tmp_path, log=lambda message: None)
     assert [(r["policy"], r["trained_sizes"], r["n_uavs"]) for r in rows] == [
         ("Policy3-G", "5", 3), ("Policy-MA", "—", 3), ("Policy-OP", "—", 3)]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling_forest.csv", "scaling_forest.md",
