@@ -32,14 +32,18 @@ from typing import Any, Callable
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from .config import (CONF_DIR, APP_SCHEMAS, ConfigError, EvaluateConfig, FiguresConfig,
-                     ReproduceConfig, ScalingConfig, Schema, ShipConfig, TrainConfig, TuneConfig)
+from .io import write_failure
+
+from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
+                     Schema, ShipConfig, TrainConfig, TuneConfig, register)
+from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_writable, check_yaml_files,
+                     config_folders, sweep_direction, sweep_jobs)
 
 EXIT_ERROR = 2
-
-
-class AppError(Exception):
-    """An error a job reports as one line (exit status 2)."""
+# The resolvers and schemas the apps' YAMLs use, registered when the apps are imported: a
+# launcher's worker process (joblib) unpickles this module's callback and task, and Hydra
+# resolves the job's folder names before the task starts.
+register()
 
 
 def _errors() -> tuple[type[BaseException], ...]:
@@ -104,54 +108,21 @@ def _run_train(cfg: TrainConfig, out: Path) -> float:
 
 
 # -- evaluate
-def _evaluate_handles(cfg: EvaluateConfig) -> list:
-    from .policies.registry import contender_handle, resolve
-
-    if cfg.contender is not None:
-        return [contender_handle(cfg.contender, cfg.device, key="contender")]
-    handles = resolve(cfg.checkpoint or cfg.policy.id, cfg.scenario.reading, cfg.checkpoints_dir,
-                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy)
-    if cfg.checkpoint and handles[0].id != cfg.policy.id:
-        raise ConfigError("policy", f"{cfg.checkpoint} holds {handles[0].name}; pass policy={handles[0].id} so that "
-                                    "its world is composed")
-    return handles
-
-
 def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
+    from .run.evaluation import check_evaluation
     from .world.memory import check_episodes_memory
-    from .run.rollout import try_contender
     from .world.spawn import check_spawn_feasible
 
     check_spawn_feasible(cfg.scenario)
     check_episodes_memory(cfg.scenario, cfg.episodes)
-    handles = _evaluate_handles(cfg)
-    if cfg.contender is not None:  # tried on a small batch now: a bad one is one line before any episode
-        try_contender(handles[0], cfg.scenario, None, cfg.device, key="contender")
+    check_evaluation(cfg)
 
 
 def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
-    from .policies.registry import world_label
-    from .run.results import EvaluationResult, write_result
-    from .run.rollout import evaluate_handle
+    from .run.evaluation import evaluate_app
 
     _set_threads(cfg.threads)
-    results = []
-    handles = _evaluate_handles(cfg)
-    for i, handle in enumerate(handles, 1):
-        _say(f"[{i}/{len(handles)}] {handle.name} ({handle.origin}): {cfg.episodes} episodes on {cfg.scenario.name} ...")
-        results.append(evaluate_handle(handle, cfg.scenario, None, cfg.episodes, cfg.seed, cfg.device,
-                                       contender_key="contender", log=_say))
-        world = f"; world: {world_label(handle.scenario)}" if handle.kind == "contender" else ""
-        _say(f"{results[-1]} [{handle.origin}{world}]")
-    result = EvaluationResult.pooled(results)
-    if len(results) > 1:
-        _say(f"pooled over {len(results)} checkpoints: {result}")
-    record = dataclasses.asdict(cfg)
-    if cfg.contender is not None:  # the world it flew in, named in summary.json too
-        record["contender_world"] = {**handles[0].scenario, "label": world_label(handles[0].scenario)}
-    paths = write_result(result, out, record)
-    _say("wrote " + " and ".join(str(p) for p in paths))
-    return result.rate("success").rate
+    return evaluate_app(cfg, out, log=_say).rate("success").rate
 
 
 # -- reproduce, figures, scaling
@@ -168,11 +139,7 @@ def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import reproduce
 
     _set_threads(cfg.threads)
-    result = reproduce(cfg.table, cfg.scenario.reading, episodes=cfg.episodes, seed=cfg.seed, device=cfg.device,
-                       checkpoints_dir=cfg.checkpoints_dir, out_dir=out, only=list(cfg.only) or None,
-                       episodes_csv=cfg.episodes_csv, paper_recipe_dir=cfg.paper_recipe_dir,
-                       recipe=cfg.recipe, contenders=cfg.contenders, compare_to=cfg.compare_to,
-                       compare_tolerance=cfg.compare_tolerance, log=_say)
+    result = reproduce(cfg, out, log=_say)
     if result["failed"]:
         raise AppError(f"Table {cfg.table}: rows not evaluated: {', '.join(result['failed'])} (see above)")
 
@@ -204,8 +171,7 @@ def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
     from .report.scaling import scaling
 
     _set_threads(cfg.threads)
-    scaling(cfg.policy_name, cfg.scenario.reading, list(cfg.sizes), cfg.episodes, cfg.seed, cfg.checkpoints_dir,
-            cfg.device, out, log=_say, others=list(cfg.others))
+    scaling(cfg, out, log=_say)
 
 
 # -- ship, tune
@@ -278,38 +244,16 @@ def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") ->
     return obj
 
 
-def check_writable(folder: Path, key: str) -> None:
-    """Refuse an output folder that cannot be made or written, before Hydra creates it: a file
-    tried in its nearest existing folder (and removed at once) must be writable."""
-    import tempfile
-
-    from .io import write_failure
-
-    probe = Path(folder).absolute()
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise ConfigError(key, f"{folder} cannot be made: {probe} is a file, not a folder")
-    try:
-        with tempfile.TemporaryFile(dir=probe):
-            pass
-    except OSError as exc:
-        why = (write_failure(OSError(exc.errno, exc.strerror, str(probe))) or
-               f"cannot write {probe}: {exc.strerror}")
-        raise ConfigError(key, f"{folder} cannot be written ({why})") from None
-
 
 def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
     """Run ``fn``; report this project's errors as one line with exit status 2 (a config error
     also names the file its group's choice came from, when that is a file)."""
-    from .io import write_failure
-
     try:
         return fn()
     except _errors() as exc:
         if config is None or not getattr(exc, "key", ""):
             fail(exc)
-        key, source = _blame(config, exc.key, getattr(exc, "also", ()))
+        key, source = blame(config, exc.key, getattr(exc, "also", ()))
         message = f"{key}: {exc.message}" if key != exc.key else str(exc)
         fail(f"{message} (in {source})" if source else message)
     except OSError as exc:  # a full disk, a file-size limit, a folder that cannot be written
@@ -317,72 +261,6 @@ def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
             raise
         fail(f"{write_failure(exc)}; files are written whole or not at all, nothing half-written was left")
 
-
-def _covers(a: str, b: str) -> bool:
-    """Dotted keys ``a`` and ``b`` are the same, or one holds the other (``x.y`` and ``x.y[0]``, ``x.y.z``)."""
-    return a == b or any(b.startswith(a + sep) or a.startswith(b + sep) for sep in ".[")
-
-
-def _blame(config: DictConfig, key: str, also: tuple[str, ...] = ()) -> tuple[str, str | None]:
-    """The key to name for an error about ``key`` (or, when the user set one of them on the
-    command line, one of ``also``) and where its value came from: the command line's override,
-    the YAML file of its group that sets it, or ``None`` (a default, or not known)."""
-    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
-    if hydra is None:
-        return key, None
-    choices = set(hydra.runtime.choices)
-    for candidate in (key, *also):
-        for override in hydra.overrides.task:
-            name = str(override).lstrip("+~").split("=")[0]
-            if name == candidate or (name not in choices and _covers(name, candidate)):  # not a group's choice
-                return candidate, f"the command line's {override}"
-    return key, _source_of(config, key)
-
-
-def _sets(text: str, path: list[str]) -> bool:
-    """The YAML ``text`` sets the nested key ``path``."""
-    import yaml
-
-    try:
-        node: Any = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return False
-    for part in path:
-        if not isinstance(node, dict) or part not in node:
-            return False
-        node = node[part]
-    return True
-
-
-def _source_of(config: DictConfig, key: str) -> str | None:
-    """The YAML file behind the group a dotted ``key`` belongs to (``scenario.n_uavs`` ->
-    ``.../scenario/corridor.yaml``) when that file sets it, from the composed config's own
-    record of its choices and search path; ``None`` when it is not a file."""
-    import re
-    from importlib.resources import files
-
-    group = (key or "").split(".")[0]
-    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
-    if not group or hydra is None:
-        return None
-    inner = [p for p in re.sub(r"\[\d+\]", "", key).split(".")[1:] if p]
-    choice = hydra.runtime.choices.get(group)
-    if not choice:
-        return None
-    for source in hydra.runtime.config_sources:
-        path, schema = str(source.path), str(source.schema)
-        try:
-            if schema == "file":
-                candidate = Path(path) / group / f"{choice}.yaml"
-                if candidate.is_file():
-                    return str(candidate) if _sets(candidate.read_text(), inner) else None
-            elif schema == "pkg":
-                candidate = files(path) / group / f"{choice}.yaml"
-                if candidate.is_file():
-                    return f"pkg://{path}/{group}/{choice}.yaml" if _sets(candidate.read_text(), inner) else None
-        except (ModuleNotFoundError, TypeError, ValueError):
-            continue
-    return None
 
 
 class PreRunCheck(Callback):
@@ -395,7 +273,7 @@ class PreRunCheck(Callback):
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         if self.app == "train":
-            _guard(lambda: _check_resume_folder(config))
+            _guard(lambda: check_resume_folder(config))
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
         _armed()
@@ -405,8 +283,8 @@ class PreRunCheck(Callback):
         _armed(jobs_elsewhere=_jobs_in_workers(config))
 
     def _check_sweep(self, config: DictConfig) -> None:
-        _guard(lambda: _check_launcher(config))
-        _guard(lambda: _sweep_direction(config), config)
+        _guard(lambda: check_launcher(config))
+        _guard(lambda: sweep_direction(config), config)
         jobs = sweep_jobs(config)
         if jobs is None:  # not a list of values (an Optuna interval ...): each job checks itself
             return
@@ -418,108 +296,6 @@ class PreRunCheck(Callback):
             out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
             _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out, "hydra.sweep.dir"), job)
 
-
-def _check_resume_folder(config: DictConfig) -> None:
-    """A ``resume.yaml`` written before run folders could move names its folder by its absolute
-    path: read from a copy or a moved folder, it would continue (or miss) the original."""
-    from .config import config_folder
-    from .run.run_folder import RESUME_CONFIG
-
-    if str(config.hydra.job.config_name) != RESUME_CONFIG:
-        return
-    folder = Path(config_folder(config.hydra.runtime.config_sources, RESUME_CONFIG))
-    out = Path(str(config.hydra.run.dir)).resolve()
-    chosen = any(str(o).startswith("hydra.run.dir=") for o in config.hydra.overrides.hydra)
-    if out != folder and not chosen:
-        raise ConfigError("hydra.run.dir", f"{folder / (RESUME_CONFIG + '.yaml')} names another run folder, {out} "
-                                           f"(it was copied or moved); pass hydra.run.dir={folder} to continue "
-                                           "this one (nothing was changed)")
-
-
-def sweep_jobs(config: DictConfig) -> list[list[str]] | None:
-    """The task overrides of every job of a sweep whose values are lists or ranges (the
-    cartesian product, as Hydra's basic sweeper makes it); ``None`` for another sweeper or a
-    sweep it cannot enumerate. Only Hydra's public override parser is used."""
-    import itertools
-
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    sweeper = str(config.hydra.sweeper.get("_target_", ""))
-    if not sweeper.endswith("BasicSweeper"):
-        return None
-    parsed = OverridesParser.create().parse_overrides([str(o) for o in config.hydra.overrides.task])
-    axes = []
-    for override in parsed:
-        if override.is_hydra_override():
-            continue
-        if not override.is_sweep_override():
-            axes.append([override.input_line])
-        elif override.is_discrete_sweep() and not override.value_type.name.startswith("GLOB"):
-            key = override.get_key_element()
-            axes.append([f"{key}={value}" for value in override.sweep_string_iterator()])
-        else:
-            return None
-    return [list(job) for job in itertools.product(*axes)]
-
-
-_LAUNCHER_EXTRAS = {"hydra_plugins.hydra_submitit_launcher": "slurm", "hydra_plugins.hydra_joblib_launcher": "",
-                    "hydra_plugins.hydra_optuna_sweeper": "optuna"}
-
-
-def _check_launcher(config: DictConfig) -> None:
-    """A launcher or sweeper that cannot start: its plugin not installed (say which extra
-    installs it), or Slurm's launcher where no ``srun`` is on the PATH (submitit would raise
-    only after Hydra wrote the sweep's ``multirun.yaml``)."""
-    import importlib.util
-    import shutil
-
-    for node in ("launcher", "sweeper"):
-        target = str(config.hydra[node].get("_target_", ""))
-        module = ".".join(target.split(".")[:2])
-        if module.startswith("hydra_plugins.") and importlib.util.find_spec(module) is None:
-            extra = _LAUNCHER_EXTRAS.get(module)
-            hint = f"pip install 'flock_torchrl[{extra}]'" if extra else f"pip install {module.split('.')[1]}"
-            raise AppError(f"hydra/{node}: the plugin {module} is not installed ({hint})")
-    launcher = str(config.hydra.launcher.get("_target_", ""))
-    if launcher.endswith(".SlurmLauncher") and shutil.which("srun") is None:
-        raise AppError("hydra/launcher=slurm: this machine has no Slurm (no srun on the PATH); run the sweep on a "
-                       "Slurm login node, or locally with hydra/launcher=local")
-
-
-# What each train objective asks of a sweeper (every one is a rate or a return: larger is better).
-OBJECTIVE_DIRECTIONS = {"success_rate": "maximize", "safe_success_rate": "maximize", "return": "maximize"}
-
-
-def _direction_names(value: Any) -> list[str]:
-    """``maximize`` / ``Direction.maximize`` / a list of them -> their names."""
-    values = list(value) if isinstance(value, (list, tuple)) or OmegaConf.is_list(value) else [value]
-    return [str(getattr(v, "name", v)).split(".")[-1].lower() for v in values]
-
-
-def _sweep_direction(config: DictConfig) -> None:
-    """Optuna's ``direction`` follows the train app's ``objective`` (the plugin's default,
-    ``minimize``, would minimise success): set from the objective unless the command line sets
-    it; one set there that contradicts the objective is a config error. Runs before Hydra
-    instantiates the sweeper (``on_multirun_start``)."""
-    from omegaconf import read_write
-
-    sweeper = config.hydra.sweeper
-    if not str(sweeper.get("_target_", "")).endswith("OptunaSweeper") or "objective" not in config:
-        return
-    want = OBJECTIVE_DIRECTIONS.get(str(config.objective))
-    if want is None:
-        return
-    given = [str(o) for o in config.hydra.overrides.hydra
-             if str(o).lstrip("+~").split("=")[0] == "hydra.sweeper.direction"]
-    if given:
-        wrong = [d for d in _direction_names(sweeper.direction) if d != want]
-        if wrong:
-            raise ConfigError("hydra.sweeper.direction", f"{given[-1]} contradicts objective={config.objective}, "
-                                                         f"which is to {want}; pass hydra.sweeper.direction={want} "
-                                                         "or leave it out (it follows the objective)")
-        return
-    with read_write(sweeper):
-        sweeper.direction = want
 
 
 # ---------------------------------------------------------------------------- the mains
@@ -615,53 +391,6 @@ def _in_sweep_worker() -> bool:
     return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and _MAIN_PID != os.getpid()
 
 
-def _config_folders(argv: list[str]) -> list[Path]:
-    """The folders a command line adds to Hydra's search path: ``--config-dir`` / ``-cd`` and the
-    ``file://`` (or plain) entries of ``hydra.searchpath=[...]`` (parsed by Hydra's public
-    override parser)."""
-    import argparse
-
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
-    parser.add_argument("--config-dir", "-cd")
-    known, rest = parser.parse_known_args(argv)
-    folders = [Path(known.config_dir)] if known.config_dir else []
-    for arg in rest:
-        if arg.lstrip("+~").startswith("hydra.searchpath="):
-            try:
-                value = OverridesParser.create().parse_overrides([arg])[0].value()
-            except Exception:  # Hydra names a malformed override itself
-                continue
-            for entry in value if isinstance(value, list) else [value]:
-                entry = str(entry)
-                if entry.startswith("file://") or "://" not in entry:
-                    folders.append(Path(entry.removeprefix("file://")))
-    return folders
-
-
-def check_yaml_files(folders: list[Path], depth: int = 4) -> None:
-    """Refuse a YAML file that does not parse in a folder the command line adds to the search
-    path (Hydra would fail on it with a long ``yaml.parser`` traceback), naming the file and
-    the line."""
-    import yaml
-
-    for folder in folders:
-        if not folder.is_dir():
-            continue
-        for path in sorted(folder.rglob("*.yaml")):
-            parts = path.relative_to(folder).parts
-            if len(parts) > depth or any(p.startswith(".") for p in parts[:-1]):
-                continue
-            try:
-                yaml.safe_load(path.read_text())
-            except yaml.YAMLError as exc:
-                mark = getattr(exc, "problem_mark", None)
-                where = f" (line {mark.line + 1}, column {mark.column + 1}: {exc.problem})" if mark else ""
-                raise AppError(f"{path} is not valid YAML{where}") from None
-            except (OSError, UnicodeDecodeError) as exc:
-                raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
-
 
 def main(app: str, noted: list[int] | None = None) -> Any:
     """Run the Hydra app ``app`` on ``sys.argv`` (a console script or ``scripts/<app>.py``);
@@ -676,7 +405,7 @@ def main(app: str, noted: list[int] | None = None) -> Any:
     try:
         _early_signals()
         _NOTED.extend(noted or [])  # after the handlers move here, so none is lost between
-        _guard(lambda: check_yaml_files(_config_folders(sys.argv[1:])))
+        _guard(lambda: check_yaml_files(config_folders(sys.argv[1:])))
         result = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
         if _NOTED and os.environ.get(SWEEP_PARENT) == str(os.getpid()):  # a joblib sweep stopped: its jobs said so
             raise SystemExit(128 + _NOTED[0])

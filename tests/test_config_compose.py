@@ -200,3 +200,48 @@ def test_reading_is_one_choice_in_every_app():
 
 def test_algo_schemas_cover_every_algo_yaml():
     assert set(available("algo")) == set(ALGO_SCHEMAS)
+
+
+def test_every_train_composition_keeps_the_values_main_composed():
+    """conf/train.yaml for every policy x experiment x reading composes exactly the values it
+    composed before configuration became a package and the learner settings moved into the
+    experiment files (tests/data/composed_train_configs.json, written from main by
+    tests/data/make_composed_reference.py before the change)."""
+    import json
+    from pathlib import Path
+
+    from flock_torchrl.config import shipped_checkpoints_dir
+
+    reference = json.loads((Path(__file__).parent / "data" / "composed_train_configs.json").read_text())
+    nodes, compositions = reference["nodes"], reference["compositions"]
+    assert len(compositions) == 12 * 6 * 2
+    shipped = str(shipped_checkpoints_dir())
+    for name, entry in compositions.items():
+        policy, experiment, reading = name.split("/")
+        cfg = compose("train", [f"policy={policy}", f"experiment={experiment}", f"reading={reading}"])
+        tree = json.loads(json.dumps(OmegaConf.to_container(cfg, resolve=True)).replace(shipped, "<checkpoints>"))
+        assert set(tree) == set(entry), name
+        for key, digest in entry.items():
+            assert tree[key] == nodes[digest], f"{name}: {key}"
+
+
+def test_app_config_composes_an_apps_config_from_names_and_values_and_checks_it():
+    from pathlib import Path
+
+    from flock_torchrl.config import ReproduceConfig, RunOptions, app_config
+
+    cfg = app_config("reproduce", table=4, reading="literal", episodes=7, only=["Policy-MA"],
+                     checkpoints_dir=Path("/tmp/none"))
+    assert isinstance(cfg, ReproduceConfig) and cfg.is_checked
+    assert (cfg.table, cfg.scenario.reading, cfg.episodes, cfg.only) == (4, "literal", 7, ["Policy-MA"])
+    assert cfg.seed == EVAL_SEED and cfg.paper_recipe_dir == "/tmp/none/literal/paper_recipe"  # interpolations follow
+    with pytest.raises(ConfigError) as info:
+        app_config("reproduce", table=6)
+    assert info.value.key == "table"
+    # The run options every app shares are checked in one place (RunOptions), under the same keys.
+    for app in ("train", "evaluate", "reproduce", "figures", "scaling", "tune_baselines"):
+        assert issubclass(type(app_config(app)), RunOptions), app
+        for key, bad in (("seed", -1), ("device", "gpu0"), ("threads", -2)):
+            with pytest.raises(ConfigError) as info:
+                app_config(app, **{key: bad})
+            assert info.value.key == key, (app, key)

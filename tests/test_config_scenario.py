@@ -125,3 +125,23 @@ def test_readings_set_the_field_of_view_convention_and_the_spawn():
         assert scenario_config("train", reading="paper_fit", n_uavs=n).swarm_spawn_radius == pytest.approx(pf)
     # Full field of view stays unlimited under both.
     assert scenario_config("train", reading="paper_fit", policy="policy1").half_fov >= math.pi
+
+
+def test_check_returns_a_checked_copy_and_leaves_the_object_as_it_was():
+    """``check()`` never rewrites the object it is called on: the obstacle lists come back as
+    floats on the copy, which remembers it is checked (so FlockingEnv takes it as it is)."""
+    fields = dataclasses.asdict(scenario_config("train", reading="literal"))
+    raw = ScenarioConfig(**{**fields, "circles": [[40, 40, 6]], "rectangles": []})
+    checked = raw.check()
+    assert checked is not raw and checked.is_checked and not raw.is_checked
+    assert raw.circles == [[40, 40, 6]] and isinstance(raw.circles[0][0], int)
+    assert checked.circles == [[40.0, 40.0, 6.0]] and all(isinstance(v, float) for v in checked.circles[0])
+    assert checked.check() is checked                   # checked once
+    assert not dataclasses.replace(checked, n_uavs=3).is_checked   # a changed copy is checked again
+    with pytest.raises(ConfigError, match=r"^scenario\.n_uavs:"):
+        dataclasses.replace(checked, n_uavs=0).check()
+    from flock_torchrl import FlockingEnv
+
+    assert FlockingEnv(checked, num_envs=1).cfg is checked
+    with pytest.raises(TypeError, match="scenario_config"):
+        FlockingEnv(fields, num_envs=1)                 # a mapping goes through scenario_config(mapping)

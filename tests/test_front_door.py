@@ -360,9 +360,9 @@ def bad_module(tmp_path):
 def test_a_contender_flies_in_one_declared_world_through_both_doors(tmp_path):
     """The same contender, seed and episodes: `evaluate contender=` and `reproduce contenders=`
     give the same numbers, in the world it declares (here: the scenario's own, instinct off)."""
-    from flock_torchrl.cli import _run_evaluate
-    from flock_torchrl.config import EvaluateConfig, compose
+    from flock_torchrl.config import EvaluateConfig, app_config, compose
     from flock_torchrl.report.reproduce import reproduce
+    from flock_torchrl.run.evaluation import evaluate_app
 
     example = "examples/goal_separation.py:make"
     cfg = EvaluateConfig.from_config(compose("evaluate", [f"contender={example}", "episodes=6"]))
@@ -371,14 +371,10 @@ def test_a_contender_flies_in_one_declared_world_through_both_doors(tmp_path):
     os.chdir(ROOT)
     try:
         lines: list[str] = []
-        import flock_torchrl.cli as cli
-        say, cli._say = cli._say, lines.append
-        try:
-            _run_evaluate(cfg, tmp_path / "evaluate")
-        finally:
-            cli._say = say
-        table = reproduce(3, "paper_fit", episodes=6, only=["Policy-MA"], contenders=[example],
-                          out_dir=tmp_path / "reproduce", episodes_csv=False, log=lambda m: None)
+        evaluate_app(cfg, tmp_path / "evaluate", log=lines.append)
+        table = reproduce(app_config("reproduce", table=3, reading="paper_fit", episodes=6, only=["Policy-MA"],
+                                     contenders=[example], episodes_csv=False), tmp_path / "reproduce",
+                          log=lambda m: None)
     finally:
         os.chdir(cwd)
     import json
@@ -421,13 +417,14 @@ def test_evaluate_names_the_contender_in_its_folder():
 # ---------------------------------------------------------------------------- issue 30, item 5: refused early
 @pytest.mark.parametrize("name", sorted(EXPECT))
 def test_a_bad_contender_is_one_line_naming_it_before_any_row(bad_module, tmp_path, name):
-    from flock_torchrl.config import ConfigError
+    from flock_torchrl.config import ConfigError, app_config
     from flock_torchrl.report.reproduce import reproduce
 
     logged: list[str] = []
     with pytest.raises(ConfigError) as info:
-        reproduce(3, "paper_fit", episodes=40, only=["Policy-MA"], contenders=[f"{bad_module}:{name}"],
-                  out_dir=tmp_path / "out", episodes_csv=False, log=logged.append)
+        reproduce(app_config("reproduce", table=3, reading="paper_fit", episodes=40, only=["Policy-MA"],
+                             contenders=[f"{bad_module}:{name}"], episodes_csv=False), tmp_path / "out",
+                  log=logged.append)
     message = str(info.value)
     assert "\n" not in message and message.startswith(f"contenders: {name}") and EXPECT[name] in message, message
     assert not [line for line in logged if "Policy-MA" in line]    # no paper row evaluated ...
@@ -463,24 +460,24 @@ def sweep_config(direction_override: str | None = None, objective: str = "succes
 
 
 def test_optunas_direction_follows_the_objective():
-    from flock_torchrl.cli import _sweep_direction
+    from flock_torchrl.prerun import sweep_direction
 
     cfg = sweep_config()
     OmegaConf.set_readonly(cfg.hydra, True)      # as Hydra hands it over
-    _sweep_direction(cfg)
+    sweep_direction(cfg)
     assert cfg.hydra.sweeper.direction == "maximize"
     cfg = sweep_config("maximize", "safe_success_rate")
-    _sweep_direction(cfg)
+    sweep_direction(cfg)
     assert cfg.hydra.sweeper.direction == "maximize"
 
 
 def test_a_direction_against_the_objective_is_a_config_error():
-    from flock_torchrl.cli import _sweep_direction
+    from flock_torchrl.prerun import sweep_direction
     from flock_torchrl.config import ConfigError
 
     with pytest.raises(ConfigError, match=r"^hydra.sweeper.direction: hydra.sweeper.direction=minimize contradicts "
                                           r"objective=success_rate, which is to maximize"):
-        _sweep_direction(sweep_config("minimize"))
+        sweep_direction(sweep_config("minimize"))
 
 
 @pytest.mark.slow
@@ -526,7 +523,7 @@ def test_slurm_without_srun_is_one_line(monkeypatch):
     import importlib.util
     import shutil
 
-    from flock_torchrl.cli import AppError, _check_launcher
+    from flock_torchrl.prerun import AppError, check_launcher
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",
@@ -536,9 +533,9 @@ def test_slurm_without_srun_is_one_line(monkeypatch):
                                                                ".SlurmLauncher"},
                                       "sweeper": {"_target_": "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"}}})
     with pytest.raises(AppError, match="no Slurm \\(no srun on the PATH\\)"):
-        _check_launcher(cfg)
+        check_launcher(cfg)
     monkeypatch.setattr(shutil, "which", lambda name: "/usr/bin/srun")
-    _check_launcher(cfg)   # on a Slurm machine it starts
+    check_launcher(cfg)   # on a Slurm machine it starts
 
 
 # ---------------------------------------------------------------------------- 8: a table of some rows

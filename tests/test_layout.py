@@ -10,8 +10,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parent.parent / "flock_torchrl"
 ROOT = PACKAGE.parent
 TOOLS = [*(ROOT / "benchmarks").rglob("*.py"), *(ROOT / "scripts").glob("*.py")]
-LAYERS = ["config", "io", "world", "policies", "run", "report", "cli"]
-RANK = {"config": 0, "io": 0, "world": 1, "policies": 2, "run": 3, "report": 4, "cli": 5}
+LAYERS = ["config", "io", "world", "policies", "run", "report", "prerun", "cli"]
+RANK = {"config": 0, "io": 0, "world": 1, "policies": 2, "run": 3, "report": 4, "prerun": 5, "cli": 5}
 
 
 def layer_of(module: str) -> str:
@@ -185,3 +185,26 @@ def test_no_import_circle():
     for module in sorted(graph):
         if module not in state:
             visit(module)
+
+
+def test_only_compose_touches_hydra_and_importing_the_package_registers_and_reads_nothing():
+    """config/: ``compose.py`` is the one module that imports Hydra (``scenario.py``, what the world
+    builds on, imports none); importing the package registers no resolver or schema and reads no
+    YAML (``EVAL_SEED`` and the schemas come when first asked for or composed)."""
+    import subprocess
+    import sys
+
+    for path in sorted((PACKAGE / "config").glob("*.py")):
+        hydra = [n for n in ast.walk(ast.parse(path.read_text()))
+                 if isinstance(n, ast.ImportFrom) and (n.module or "").split(".")[0] == "hydra"
+                 or isinstance(n, ast.Import) and any(a.name.split(".")[0] == "hydra" for a in n.names)]
+        assert not hydra or path.name == "compose.py", f"config/{path.name} imports Hydra"
+    bare = ("import flock_torchrl, flock_torchrl.run, flock_torchrl.world, flock_torchrl.config as c; "
+            "from omegaconf import OmegaConf; from hydra.core.config_store import ConfigStore; "
+            "assert not OmegaConf.has_resolver('pi'); assert 'train_schema.yaml' not in ConfigStore.instance().repo; "
+            "assert c.EVAL_SEED == 2024 and OmegaConf.has_resolver('pi')")
+    # The command-line apps register when cli is imported: a launcher's worker unpickles its task.
+    apps = "import flock_torchrl.cli; from omegaconf import OmegaConf; assert OmegaConf.has_resolver('flock.run_name')"
+    for snippet in (bare, apps):
+        proc = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, cwd=ROOT)
+        assert proc.returncode == 0, proc.stderr[-2000:]

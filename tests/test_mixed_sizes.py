@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from flock_torchrl import FlockingEnv, load_policy
-from flock_torchrl.config import ConfigError, algo_config, compose
+from flock_torchrl.config import ConfigError, algo_config, app_config, compose
 from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.policies.learners import SACLearner
 from flock_torchrl.run.launch import train
@@ -72,8 +72,9 @@ def test_a_mixed_run_trains_resumes_exactly_and_flies_any_size(tmp_path):
     # a row of the scaling table beside the shipped Policy3-G, with the sizes it was trained at
     from flock_torchrl.report.scaling import scaling
 
-    rows = scaling("policy3_g", "paper_fit", [4], 2, others=[str(whole.checkpoint)], out_dir=tmp_path / "scaling",
-                   log=lambda _: None)
+    cfg = app_config("scaling", reading="paper_fit", policy_name="policy3_g", sizes=[4], episodes=2,
+                     others=[str(whole.checkpoint)])
+    rows = scaling(cfg, tmp_path / "scaling", log=lambda _: None)
     assert [(r["policy"], r["trained_sizes"]) for r in rows] == [("Policy3-G", "5"), ("Policy3-G [tiny, seed 0]", "3+6")]
     assert "| Policy3-G [tiny, seed 0] | 3+6 | 4 |" in (tmp_path / "scaling" / "scaling.md").read_text()
 

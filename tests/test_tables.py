@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from flock_torchrl.config import app_config
 from flock_torchrl.io import write_csv
 from flock_torchrl.policies.scripted import goal_seeking_policy
 from flock_torchrl.report.claims import CLAIMS, LEARNED, claim_verdicts, fidelity, fidelity_terms
@@ -150,8 +151,9 @@ def test_claims_by_hand():
 
 def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     policy = goal_seeking_policy()
-    out = reproduce(3, "literal", episodes=4, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "results",
-                    policies={"Policy3-G": policy}, only=["Policy3-G"], log=lambda m: None)
+    cfg = app_config("reproduce", table=3, reading="literal", episodes=4, checkpoints_dir=tmp_path / "none",
+                     only=["Policy3-G"])
+    out = reproduce(cfg, tmp_path / "results", policies={"Policy3-G": policy}, log=lambda m: None)
     assert out["failed"] == [] and out["markdown"].is_file() and out["csv"].is_file()
     fields, rows = _read(out["csv"])
     by_policy = {r["policy"]: r for r in rows}
@@ -220,11 +222,13 @@ def test_comparison_by_hand(tmp_path):
 @pytest.mark.slow
 def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
     policy = goal_seeking_policy()
-    first = reproduce(3, "literal", episodes=3, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "a",
-                      policies={"Policy3-G": policy}, only=["Policy3-G"], log=lambda m: None, episodes_csv=False)
-    again = reproduce(3, "literal", episodes=3, checkpoints_dir=tmp_path / "none", out_dir=tmp_path / "b",
-                      policies={"Policy3-G": policy}, only=["Policy3-G"], log=lambda m: None, episodes_csv=False,
-                      compare_to=first["csv"], compare_tolerance={"success_rate": 0.0, "d_min_uav": 1e-5})
+    values = dict(table=3, reading="literal", episodes=3, checkpoints_dir=tmp_path / "none", only=["Policy3-G"],
+                  episodes_csv=False)
+    first = reproduce(app_config("reproduce", **values), tmp_path / "a", policies={"Policy3-G": policy},
+                      log=lambda m: None)
+    again = reproduce(app_config("reproduce", **values, compare_to=first["csv"],
+                                 compare_tolerance={"success_rate": 0.0, "d_min_uav": 1e-5}),
+                      tmp_path / "b", policies={"Policy3-G": policy}, log=lambda m: None)
     (row,) = again["comparison"]     # the same policy, episodes and seed: the same, up to the CSV's 6 digits
     assert row["policy"] == "Policy3-G" and row["within"] and row["success_rate_delta"] == 0.0
     assert abs(row["d_min_uav_delta"]) <= 1e-5 * abs(row["d_min_uav"])
@@ -245,7 +249,8 @@ def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
     dashes for a rule-based policy's training, and the CSV, Markdown and plot written."""
     from flock_torchrl.report.scaling import scaling
 
-    rows = scaling("policy_ma", "literal", [3], 1, out_dir=tmp_path, log=lambda message: None)
+    cfg = app_config("scaling", reading="literal", policy_name="policy_ma", sizes=[3], episodes=1)
+    rows = scaling(cfg, tmp_path, log=lambda message: None)
     assert [(r["policy"], r["trained_sizes"], r["n_uavs"], r["n_episodes"]) for r in rows] == [("Policy-MA", "—", 3, 1)]
     assert rows[0]["spawn_radius"] == pytest.approx(3.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling.csv", "scaling.md", "scaling.png"]
@@ -258,8 +263,9 @@ def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_
     (the training scenario's scaling.* stay as they are)."""
     from flock_torchrl.report.scaling import scaling
 
-    rows = scaling("policy3_g", "paper_fit", [3], 1, out_dir=tmp_path, log=lambda message: None,
-                   others=["policy_ma", "policy_op"], scenario="forest")
+    cfg = app_config("scaling", reading="paper_fit", scenario="forest", policy_name="policy3_g", sizes=[3],
+                     episodes=1, others=["policy_ma", "policy_op"])
+    rows = scaling(cfg, tmp_path, log=lambda message: None)
     assert [(r["policy"], r["trained_sizes"], r["n_uavs"]) for r in rows] == [
         ("Policy3-G", "5", 3), ("Policy-MA", "—", 3), ("Policy-OP", "—", 3)]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scaling_forest.csv", "scaling_forest.md",

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from ..config import EVAL_SEED, ConfigError, check_tolerance
+from ..config import ConfigError, ReproduceConfig, check_tolerance
 from ..io import write_csv
 from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import (PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints,
@@ -158,31 +158,30 @@ def check_table_inputs(table: int, reading: str, checkpoints_dir: str | Path, pa
     plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders)
 
 
-def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SEED, device: str = "cpu",
-              checkpoints_dir: str | Path = "checkpoints", out_dir: str | Path = ".",
-              policies: Mapping[str, Any] | None = None, only: Sequence[str] | None = None,
-              episodes_csv: bool = True, paper_recipe_dir: str | Path | None = None, recipe: str = "fast",
-              contenders: Sequence[Any] = (), compare_to: str | Path | None = None,
-              compare_tolerance: Mapping[str, float] | None = None,
-              log: Callable[[str], None] = print) -> dict[str, Any]:
-    """Evaluate everything a paper table needs under ``reading`` and write it to ``out_dir``.
+def reproduce(cfg: ReproduceConfig, out_dir: str | Path = ".", log: Callable[[str], None] = print,
+              policies: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Evaluate everything the paper table ``cfg.table`` needs under ``cfg.scenario.reading`` and
+    write it to ``out_dir``: ``conf/reproduce.yaml``'s app, taking its checked config.
+
+    Build ``cfg`` with :func:`flock_torchrl.config.app_config`, e.g.
+    ``reproduce(app_config("reproduce", table=3, reading="paper_fit", episodes=100), "out")``.
+    Its fields: ``only`` (the paper names of the rows to evaluate; empty: all), ``recipe``
+    (``fast``: the shipped checkpoints; ``paper``: Table III of the paper recipe), ``contenders``
+    (checkpoint paths or factory import paths, ``pkg.module.make``, or mappings with
+    ``_target_``, ``name``, ``scenario`` and ``extras``: extra rows), ``compare_to`` (a table CSV
+    written before, e.g. ``results/<reading>/table3.csv``: the rows both hold are also written
+    side by side, ``<stem>_vs_reference.md`` / ``.csv``, :mod:`~flock_torchrl.report.compare`,
+    with ``compare_tolerance``, column -> largest difference, deciding each row's ``within``).
 
     Args:
         policies: policy name -> a module / checkpoint (or a list) used instead (tests).
-        only: evaluate only these policy names.
-        recipe: ``fast`` (the shipped checkpoints) or ``paper`` (Table III of the paper recipe).
-        contenders: checkpoint paths or factory import paths (``pkg.module.make``, or a mapping
-            with ``_target_``, ``name``, ``scenario`` and ``extras``): extra rows.
-        compare_to: a table CSV written before (e.g. ``results/<reading>/table3.csv``): the rows
-            both hold are also written side by side, ``<stem>_vs_reference.md`` / ``.csv``
-            (:mod:`~flock_torchrl.report.compare`), with ``compare_tolerance`` (column -> largest
-            difference) deciding each row's ``within``.
     """
-    tolerance = check_tolerance(compare_tolerance or {})
+    table, reading, recipe, compare_to = cfg.table, cfg.scenario.reading, cfg.recipe, cfg.compare_to
+    tolerance = check_tolerance(cfg.compare_tolerance)
     if compare_to is not None:
         read_table(compare_to, table)   # a missing or foreign reference is refused before the first episode
-    rows_to_run, notes = plan(table, reading, checkpoints_dir, paper_recipe_dir, only, recipe, contenders, device,
-                              policies)
+    rows_to_run, notes = plan(table, reading, cfg.checkpoints_dir, cfg.paper_recipe_dir, list(cfg.only) or None,
+                              recipe, cfg.contenders, cfg.device, policies)
     results: dict[tuple[str, ...], EvaluationResult] = {}
     extra_rows, seed_rows, episode_rows = [], [], []
     t0 = time.perf_counter()
@@ -191,7 +190,7 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
     evaluated: dict[int, EvaluationResult] = {}
     for i, k in enumerate(order, 1):
         entry = rows_to_run[k].entry
-        parts = [evaluate_handle(h, entry.scenario, reading, episodes, seed, device, entry.env_overrides)
+        parts = [evaluate_handle(h, entry.scenario, reading, cfg.episodes, cfg.seed, cfg.device, entry.env_overrides)
                  for h in rows_to_run[k].handles]
         evaluated[k] = result = EvaluationResult.pooled(parts)
         result.policy = entry.policy
@@ -214,7 +213,7 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
         for part in result.parts or [result]:
             seed_rows.append({**key_cols, "extra": row.extra, "checkpoint": part.source, **part.summary(),
                               "rollout_steps": part.rollout_steps, "wall_time_s": round(part.wall_time_s, 2)})
-            if episodes_csv:
+            if cfg.episodes_csv:
                 episode_rows += [{**key_cols, "extra": row.extra, "checkpoint": part.source, **rec}
                                  for rec in part.records()]
     rows = comparison_rows(table, results, notes) + extra_rows
@@ -225,12 +224,12 @@ def reproduce(table: int, reading: str, episodes: int = 500, seed: int = EVAL_SE
         write_csv(out_dir / f"{stem}_seeds.csv", list(seed_rows[0]), seed_rows)
     if episode_rows:
         write_csv(out_dir / f"{stem}_episodes.csv.gz", list(episode_rows[0]), episode_rows)
-    score = render_tables(out_dir, reading, episodes, seed)
+    score = render_tables(out_dir, reading, cfg.episodes, cfg.seed)
     log(f"[table {table}] {reading}, {recipe} recipe: wrote {out_dir / f'{stem}.md'} and {csv_path} "
         f"({len(rows_to_run)} rows evaluated, {time.perf_counter() - t0:.1f} s); {score}")
     compared = None
     if compare_to is not None:
-        source = _collection(recipe, reading, checkpoints_dir, paper_recipe_dir)
+        source = _collection(recipe, reading, cfg.checkpoints_dir, cfg.paper_recipe_dir)
         _, md_path, compared = write_comparison(table, stem, out_dir, compare_to, rows, tolerance, str(source))
         n_in = sum(bool(r["within"]) for r in compared)
         log(f"[table {table}] beside {compare_to}: {n_in} of {len(compared)} rows within the tolerance "

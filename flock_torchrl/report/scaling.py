@@ -18,11 +18,10 @@ from typing import Callable, Sequence
 
 from matplotlib.figure import Figure
 
-from ..config import scenario_config
+from ..config import ScalingConfig, scenario_config
 from ..io import write_csv, write_text
 from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import resolve
-from ..config import EVAL_SEED
 from ..run.rollout import evaluate_handle
 from .figures import save_figure
 
@@ -43,23 +42,24 @@ def training_of(handle) -> tuple[str, str]:
     return str(meta.get("experiment", "—")), "+".join(str(n) for n in sizes)
 
 
-def scaling(policy: str, reading: str, sizes: Sequence[int] = (5, 9, 20, 50, 100), episodes: int = 500,
-            seed: int = EVAL_SEED, checkpoints_dir: str | Path = "checkpoints", device: str = "cpu",
-            out_dir: str | Path = ".", log: Callable[[str], None] = print, others: Sequence[str] = (),
-            scenario: str = "train") -> list[dict]:
-    """Evaluate ``policy`` (its lowest shipped seed) and each of ``others`` (policy ids or
-    checkpoint files, e.g. the mixed-size policy or the baselines ``policy_ma``, ``policy_op``)
-    at each swarm size of ``scenario`` (a scenario name: ``train``, ``forest``); write
-    ``scaling.csv``, ``scaling.md`` and ``scaling.png`` into ``out_dir`` (for another scenario
-    than ``train``: ``scaling_<scenario>.*``)."""
-    handles = [resolve(p, reading, checkpoints_dir, device)[0] for p in (policy, *others)]
+def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], None] = print) -> list[dict]:
+    """``conf/scaling.yaml``'s app: evaluate ``cfg.policy_name`` (its lowest shipped seed) and each
+    of ``cfg.others`` (policy ids or checkpoint files, e.g. the mixed-size policy or the baselines
+    ``policy_ma``, ``policy_op``) at each of ``cfg.sizes`` on ``cfg.scenario`` (by its name:
+    ``train``, ``forest``); write ``scaling.csv``, ``scaling.md`` and ``scaling.png`` into
+    ``out_dir`` (for another scenario than ``train``: ``scaling_<scenario>.*``). Build ``cfg``
+    with :func:`flock_torchrl.config.app_config`, e.g.
+    ``app_config("scaling", reading="literal", policy_name="policy_ma", sizes=[3], episodes=1)``."""
+    reading, sizes, episodes, seed = cfg.scenario.reading, list(cfg.sizes), cfg.episodes, cfg.seed
+    scenario = cfg.scenario.name
+    handles = [resolve(p, reading, cfg.checkpoints_dir, cfg.device)[0] for p in (cfg.policy_name, *cfg.others)]
     rows = []
     for k, handle in enumerate(handles):
         experiment, trained = training_of(handle)
         label = f"{handle.name} [{experiment}, seed {handle.seed}]" if k and handle.kind != "rule" else handle.name
         for n in sizes:
             start = time.perf_counter()
-            result = evaluate_handle(handle, scenario, reading, episodes, seed, device, {"n_uavs": n})
+            result = evaluate_handle(handle, scenario, reading, episodes, seed, cfg.device, {"n_uavs": n})
             s = result.summary()
             radius = scenario_config(scenario, reading=reading, n_uavs=n).swarm_spawn_radius
             rows.append({"policy": label, "trained_sizes": trained, "n_uavs": n, "spawn_radius": radius,

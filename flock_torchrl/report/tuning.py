@@ -20,6 +20,7 @@ from typing import Callable, Iterator, Sequence
 
 import torch
 
+from ..config import TuneConfig
 from ..io import write_csv
 from ..policies.baselines import controller_params
 from ..policies.registry import policy_config_of, rule_handle
@@ -55,14 +56,15 @@ def score(result: EvaluationResult) -> tuple[float, float, float]:
     return round((success + safe) / 2, 6), round(success, 6), result.cell("d_min_obs").mean
 
 
-def _run(policy, scenario: str, reading: str, episodes: int, seed: int, max_steps: int | None) -> EvaluationResult:
+def _run(policy, scenario: str, reading: str, episodes: int, seed: int, max_steps: int | None,
+         device: str = "cpu") -> EvaluationResult:
     handle = rule_handle(policy, policy_config_of(policy.id, reading)[1])
-    return evaluate_handle(handle, scenario, reading, episodes, seed,
+    return evaluate_handle(handle, scenario, reading, episodes, seed, device,
                            env_overrides={"max_steps": max_steps} if max_steps else None)
 
 
 def tune(name: str, reading: str, episodes: int, seed: int, max_steps: int,
-         log: Callable[[str], None] = print) -> tuple[dict[str, float], list[dict]]:
+         log: Callable[[str], None] = print, device: str = "cpu") -> tuple[dict[str, float], list[dict]]:
     """Grid-tune one controller on the training scenario; ``(best point, one row per candidate)``."""
     policy, _ = policy_config_of(name, reading)
     base = controller_params(policy)
@@ -72,7 +74,7 @@ def tune(name: str, reading: str, episodes: int, seed: int, max_steps: int,
     for point in candidates(name):
         params = dataclasses.asdict(dataclasses.replace(base, **point))
         candidate = dataclasses.replace(policy, params=params)
-        result = _run(candidate, "train", reading, episodes, seed, max_steps)
+        result = _run(candidate, "train", reading, episodes, seed, max_steps, device)
         s = result.summary()
         rows.append({**point, "score": score(result)[0], "success": s["success_rate"],
                      "safe_success": s["safe_success_rate"], **{m: s[m] for m in CELL_METRICS},
@@ -87,7 +89,7 @@ def tune(name: str, reading: str, episodes: int, seed: int, max_steps: int,
 
 
 def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: Sequence[str], seed: int,
-                 log: Callable[[str], None] = print) -> list[dict]:
+                 log: Callable[[str], None] = print, device: str = "cpu") -> list[dict]:
     """The composed parameters on each scenario (evaluation seed), beside the paper's numbers."""
     paper = {("train", r["policy"]): r for r in load_reference(3)[1]}
     paper.update({(r["scenario"].lower(), r["policy"]): r for r in load_reference(4)[1]})
@@ -95,7 +97,7 @@ def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: S
     for scenario in scenarios:
         for name in names:
             policy, _ = policy_config_of(name, reading)
-            result = _run(policy, scenario, reading, episodes, seed, None)
+            result = _run(policy, scenario, reading, episodes, seed, None, device)
             s = result.summary()
             crashed = result.rate("crashed").rate
             rows.append({"scenario": scenario, "policy": policy.name, **s, "crashed": crashed})
@@ -106,16 +108,18 @@ def evaluate_all(names: Sequence[str], reading: str, episodes: int, scenarios: S
     return rows
 
 
-def tune_app(cfg, out_dir: Path, log: Callable[[str], None] = print) -> None:
-    """``scripts/tune_baselines.py``: tune (or, ``evaluate=true``, measure) and write CSVs."""
-    reading = str(cfg.scenario.reading)
+def tune_app(cfg: TuneConfig, out_dir: Path, log: Callable[[str], None] = print) -> None:
+    """``scripts/tune_baselines.py``: tune (or, ``evaluate=true``, measure) and write CSVs; ``cfg``:
+    ``conf/tune_baselines.yaml``'s checked config (:func:`flock_torchrl.config.app_config`)."""
+    reading = cfg.scenario.reading
     start = time.perf_counter()
     if cfg.evaluate:
-        rows = evaluate_all(list(cfg.controllers), reading, int(cfg.episodes), list(cfg.scenarios), cfg.eval_seed, log)
+        rows = evaluate_all(list(cfg.controllers), reading, cfg.episodes, list(cfg.scenarios), cfg.eval_seed, log,
+                            cfg.device)
         write_csv(out_dir / "evaluation.csv", list(rows[0]), rows)
     else:
         for name in cfg.controllers:
-            chosen, rows = tune(str(name), reading, int(cfg.episodes), int(cfg.seed), int(cfg.max_steps), log)
+            chosen, rows = tune(name, reading, cfg.episodes, cfg.seed, cfg.max_steps, log, cfg.device)
             write_csv(out_dir / f"{name}.csv", list(rows[0]), rows)
             log(f"# {name} ({reading}): " + ", ".join(f"{k}: {v}" for k, v in chosen.items()))
     log(f"wrote {out_dir} ({time.perf_counter() - start:.0f} s)")

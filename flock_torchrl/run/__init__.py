@@ -7,9 +7,10 @@ import logging
 import os
 from typing import Any, Iterator
 
+from ..config import eval_seed
 from . import launch
 from .results import EvaluationResult
-from .rollout import EVAL_SEED, evaluate, evaluate_handle, rollout_episode
+from .rollout import evaluate, evaluate_handle, rollout_episode
 from .setup import make_train_config
 from .signals import TrainingInterrupted
 from .trainer import TrainResult
@@ -33,6 +34,13 @@ def quiet_torchrl() -> Iterator[None]:
 def train(*args: Any, **kwargs: Any) -> TrainResult:
     with quiet_torchrl():
         return launch.train(*args, **kwargs)
+
+
+def __getattr__(name: str) -> Any:
+    """``EVAL_SEED``: the evaluation seed of conf/world.yaml, read when first asked for."""
+    if name == "EVAL_SEED":
+        return eval_seed()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = ["EVAL_SEED", "EvaluationResult", "TrainResult", "TrainingInterrupted", "evaluate", "evaluate_handle",

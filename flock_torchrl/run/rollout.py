@@ -5,7 +5,7 @@ n_episodes`` in the policy's world, resets it once and steps the policy (determi
 actions, no gradients, no auto-reset) until every world has finished one episode; each
 world's metrics are read at its first ``done``, and the worlds still running continue in a
 smaller env (:meth:`FlockingEnv.subset`). Every policy sees the same starts: the env is
-seeded with :data:`EVAL_SEED` and draws all ``n_episodes`` layouts in its single reset.
+seeded with the evaluation seed (``eval_seed`` of conf/world.yaml) and draws all ``n_episodes`` layouts in its single reset.
 :func:`evaluate` resolves what a policy argument stands for (a learned policy pools its
 shipped seeds) and evaluates each.
 
@@ -28,7 +28,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from ..config import EVAL_SEED, ConfigError, ScenarioConfig, scenario_config
+from ..config import ConfigError, ScenarioConfig, eval_seed, scenario_config
 from ..policies.registry import PolicyHandle, describe, resolve
 from ..world.env import FlockingEnv
 from ..world.metrics import METRIC_KEYS
@@ -36,7 +36,7 @@ from .results import EvaluationResult
 
 
 def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
-               reading: str | None = None, num_envs: int = 1, seed: int | None = EVAL_SEED,
+               reading: str | None = None, num_envs: int = 1, seed: int | None = None,
                device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
                extras: Sequence[str] = ()) -> FlockingEnv:
     """An env of a scenario in the policy's world: its reading, its scenario fields and the
@@ -117,7 +117,7 @@ def try_contender(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping
     """Build a contender for a small batch of its first scenario and step it a few times,
     before any row is evaluated: a factory that raises or returns no module, an output the env
     cannot take, the reading of a checkpoint — each is one :class:`ConfigError` naming it."""
-    env = policy_env(handle, scenario, reading, num_envs, EVAL_SEED, device, env_overrides)
+    env = policy_env(handle, scenario, reading, num_envs, eval_seed(), device, env_overrides)
     module = CheckedContender(handle.build(env), handle.name, key)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
@@ -177,7 +177,7 @@ def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
 
 
 def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "train", reading: str | None = None,
-             n_episodes: int = 500, seed: int = EVAL_SEED, device: str | torch.device = "cpu",
+             n_episodes: int = 500, seed: int | None = None, device: str | torch.device = "cpu",
              env_overrides: Mapping[str, Any] | None = None, max_steps: int | None = None, *,
              checkpoints_dir: str | os.PathLike | None = None) -> EvaluationResult:
     """Evaluate a policy on ``n_episodes`` seeded episodes of a scenario (section 5 protocol).
@@ -188,7 +188,8 @@ def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "
             :class:`~flock_torchrl.policies.PolicyHandle`.
         scenario: ``train``, ``s1`` ... ``s5``, ``tau_v``, or a complete scenario.
         reading: the world's reading (default: a checkpoint's own, else the composed default).
-        seed: env seed; :data:`EVAL_SEED` gives every policy the same starts and goals.
+        seed: env seed; the default, the evaluation seed (``eval_seed`` of conf/world.yaml), gives every
+            policy the same starts and goals.
         env_overrides: scenario fields on top of the policy's (e.g. ``{"tau_v": 0.5}``).
         max_steps: episode limit T_max override.
         checkpoints_dir: root of the shipped checkpoints (for a learned policy's name).
@@ -204,7 +205,7 @@ def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "
 
 
 def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
-                    reading: str | None = None, n_episodes: int = 500, seed: int = EVAL_SEED,
+                    reading: str | None = None, n_episodes: int = 500, seed: int | None = None,
                     device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
                     contender_key: str = "contenders", log: Callable[[str], None] | None = None
                     ) -> EvaluationResult:
@@ -213,6 +214,7 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
     contender's every output is checked (:class:`CheckedContender`, errors under
     ``contender_key``); ``log``: progress lines where no bar shows (:func:`run_episodes`)."""
     start = time.perf_counter()
+    seed = eval_seed() if seed is None else seed
     env = policy_env(handle, scenario, reading, n_episodes, seed, device, env_overrides)
     module = handle.build(env)
     if handle.kind == "contender":
@@ -224,7 +226,7 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
         wall_time_s=time.perf_counter() - start, source=handle.origin)
 
 
-def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = None, seed: int = EVAL_SEED,
+def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = None, seed: int | None = None,
                     device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
                     checkpoints_dir: str | os.PathLike | None = None) -> tuple[TensorDict, FlockingEnv]:
     """One seeded episode of one world, kept step by step (for plots and animations), with the
@@ -235,10 +237,11 @@ def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = 
         ``(rollout, env)``: the rollout TensorDict ``[1, T]`` up to the first ``done`` and the env.
     """
     handle = resolve(policy, reading, checkpoints_dir, device=str(device))[0]
-    env = policy_env(handle, scenario, reading, 1, seed, device, env_overrides, extras=("physics",))
+    env = policy_env(handle, scenario, reading, 1, eval_seed() if seed is None else seed, device, env_overrides,
+                     extras=("physics",))
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         rollout = env.rollout(env.cfg.max_steps, handle.build(env), break_when_any_done=True)
     return rollout.cpu(), env
 
 
-__all__ = ["CheckedContender", "EVAL_SEED", "evaluate", "try_contender", "evaluate_handle", "policy_env", "rollout_episode", "run_episodes"]
+__all__ = ["CheckedContender", "evaluate", "try_contender", "evaluate_handle", "policy_env", "rollout_episode", "run_episodes"]

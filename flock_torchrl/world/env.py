@@ -13,7 +13,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from ..config import ScenarioConfig, scenario_config
+from ..config.scenario import ScenarioConfig
 from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
 from .sensors import observation_size, state_size
@@ -76,9 +76,10 @@ class FlockingEnv(EnvBase):
     ``rollout`` do, through ``step_and_maybe_reset``).
 
     Args:
-        scenario: a name under ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``),
-            composed with ``reading`` and ``policy`` by Hydra; or a complete scenario
-            (:class:`~flock_torchrl.config.ScenarioConfig`, mapping or DictConfig).
+        scenario: a :class:`~flock_torchrl.config.ScenarioConfig` (checked here unless it is
+            already: ``scenario_config(...)`` and the apps hand over checked ones), or a name under
+            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``), composed with
+            ``reading``, ``policy_id`` and ``overrides`` by :func:`flock_torchrl.config.scenario_config`.
         num_envs: batch size ``B``.
         device: torch device of every tensor.
         seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles).
@@ -109,14 +110,19 @@ class FlockingEnv(EnvBase):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
     batch_locked = True
 
-    def __init__(self, scenario: str | ScenarioConfig | DictConfig | Mapping[str, Any] = "train", num_envs: int = 1,
+    def __init__(self, scenario: ScenarioConfig | str = "train", num_envs: int = 1,
                  device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
                  policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
                  check_actions: bool = True, **overrides: Any) -> None:
         if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
-            cfg = ScenarioConfig.from_config(scenario)  # checked once: a checked scenario is taken as it is
-        else:
+            cfg = scenario if scenario.is_checked else scenario.check()  # checked once
+        elif isinstance(scenario, (str, ScenarioConfig)):  # a name: the one helper composes it (Hydra)
+            from ..config.compose import scenario_config
+
             cfg = scenario_config(scenario, reading=reading, policy=policy_id, **overrides)
+        else:
+            raise TypeError(f"scenario: a ScenarioConfig or a scenario's name, got {type(scenario).__name__} "
+                            "(flock_torchrl.scenario_config(mapping) checks a mapping)")
         check_spawn_feasible(cfg)
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
@@ -153,7 +159,7 @@ class FlockingEnv(EnvBase):
     def from_config(cls, cfg: ScenarioConfig | DictConfig | Mapping[str, Any], num_envs: int = 1,
                     device: str | torch.device = "cpu", seed: int | None = 0, **kwargs: Any) -> "FlockingEnv":
         """Build from a composed scenario (e.g. Hydra's ``cfg.scenario``), exactly as composed."""
-        return cls(cfg, num_envs=num_envs, device=device, seed=seed, **kwargs)
+        return cls(ScenarioConfig.from_config(cfg), num_envs=num_envs, device=device, seed=seed, **kwargs)
 
     # ------------------------------------------------------------------ specs
     def _make_spec(self) -> None:

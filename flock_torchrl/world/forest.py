@@ -33,7 +33,7 @@ import math
 
 import torch
 
-from ..config import ConfigError, ScenarioConfig
+from ..config.scenario import ConfigError, ScenarioConfig
 from .geometry import Obstacles
 
 

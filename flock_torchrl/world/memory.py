@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..config import ConfigError
+from ..config.scenario import ConfigError
 
 GiB = 2**30
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import ConfigError, ScenarioConfig
+from ..config.scenario import ConfigError, ScenarioConfig
 from .forest import SpawnError, check_forest, sample_forest
 from .geometry import Obstacles, distance_to_obstacles, pairwise
 

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 import torch
 
-from ..config import ScenarioConfig
+from ..config.scenario import ScenarioConfig
 
 
 @dataclass(frozen=True)

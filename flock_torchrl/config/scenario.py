@@ -1,0 +1,223 @@
+"""The world's configuration: :class:`ScenarioConfig`, a plain dataclass and its checks
+(docs/specification.md sections 1-6 and 9 say what every field means).
+
+No Hydra here: ``flock_torchrl.world`` imports this module (and :mod:`.checks`) only. A scenario
+is composed from ``conf/scenario/*.yaml``, ``conf/reading/*.yaml`` and a policy's fields by
+:func:`flock_torchrl.config.compose.scenario_config`, or built directly and checked:
+``ScenarioConfig(**fields).check()`` returns the checked scenario.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, List, Sequence
+
+from omegaconf import MISSING
+
+from .checks import (MAX_UAVS, ConfigError, Schema, choice, count, dotted, is_number, non_negative, positive,
+                     reject)
+
+
+@dataclass
+class ScenarioConfig(Schema):
+    """The world (docs/specification.md sections 1-6, 9). Values: ``conf/scenario/*.yaml``
+    (the world), ``conf/reading/*.yaml`` (the reading's fields), ``conf/policy/*.yaml``
+    (the policy's sensing, instinct and reward variant)."""
+
+    prefix: ClassVar[str] = "scenario"
+
+    name: str = MISSING
+    reading: str = MISSING                   # literal | paper_fit (section 9)
+    # --- world (section 1)
+    n_uavs: int = MISSING
+    dt: float = MISSING
+    max_steps: int = MISSING
+    tau_v: float = MISSING
+    v_max: float = MISSING
+    goal_radius: float = MISSING
+    collision_distance: float = MISSING
+    uav_collision_terminates: bool = MISSING
+    heading_speed_threshold: float = MISSING
+    # --- sensors (section 2)
+    camera_range: float = MISSING
+    fov: float = MISSING                     # phi_v, as the paper states it
+    fov_convention: str = MISSING            # total (visible iff |bearing| <= fov/2) | half_angle (<= fov)
+    n_beams: int = MISSING
+    laser_range: float = MISSING
+    n_scan: int = MISSING
+    n_cam: int = MISSING
+    goal_scale: float = MISSING
+    # --- instinct (section 3)
+    instinct: bool = MISSING
+    tangential: bool = MISSING
+    rep_gain: float = MISSING
+    rep_range: float = MISSING
+    safe_distance: float = MISSING
+    # --- action interface: policy (Eq. 19-20) | velocity (the rule-based controllers)
+    action_mode: str = MISSING
+    # --- reward (section 4): scan | min_uav_scan (Policy4-G)
+    collision_reward_source: str = MISSING
+    # --- starts, goals, obstacles (sections 1, 6, 9)
+    area_center: List[float] = MISSING
+    area_size: float = MISSING
+    d_env: float = MISSING
+    spawn_radius: float = MISSING            # radius at the reference swarm size
+    spawn_reference_uavs: int = MISSING      # the radius grows as sqrt(N / this) ...
+    spawn_radius_shrinks: bool = MISSING     # ... and below it shrinks too (else stays)
+    spawn_separation: float = MISSING
+    spawn_clearance: float = MISSING
+    spawn_max_tries: int = MISSING
+    # Lists of numbers ([[40, 40, 6]] as well as [[40.0, 40.0, 6.0]]: OmegaConf's nested typed
+    # lists refuse an int, so check() verifies and converts them).
+    circles: List[Any] = MISSING             # [cx, cy, radius]
+    rectangles: List[Any] = MISSING          # [cx, cy, width_x, height_y]
+    # --- moving circles (S5)
+    n_moving: int = MISSING
+    moving_radius: float = MISSING
+    moving_speed: float = MISSING
+    moving_clearance: float = MISSING
+    moving_box: List[float] = MISSING
+    # --- obstacles drawn per episode (the forest; docs/specification.md section 6, decision). A
+    # scenario saved before these fields existed takes conf/scenario/train.yaml's ("none"):
+    # :func:`saved_scenario`.
+    random_circles: int = MISSING            # how many circles each episode draws
+    random_circle_radius: List[float] = MISSING   # [min, max] radius
+    random_rectangles: int = MISSING         # how many axis-aligned rectangles each episode draws
+    random_rectangle_size: List[float] = MISSING  # [min, max] of each side
+    random_region: List[float] = MISSING     # [x0, y0, x1, y1]
+    random_clearance: float = MISSING        # m between drawn obstacles, and from starts, goal, other obstacles
+    # --- observation noise (S4)
+    noise: bool = MISSING
+    noise_scan: float = MISSING
+    noise_distance: float = MISSING
+    noise_angle: float = MISSING
+
+    @property
+    def half_fov(self) -> float:
+        """The largest |bearing| the camera sees (docs/specification.md sections 2 and 9)."""
+        return self.fov if self.fov_convention == "half_angle" else self.fov / 2
+
+    @property
+    def swarm_spawn_radius(self) -> float:
+        """Spawn disc radius for this swarm size: ``spawn_radius * sqrt(N / N_ref)``, kept at
+        ``spawn_radius`` below ``N_ref`` unless ``spawn_radius_shrinks`` (section 9)."""
+        scale = self.n_uavs / self.spawn_reference_uavs
+        if not self.spawn_radius_shrinks:
+            scale = max(scale, 1.0)
+        return self.spawn_radius * math.sqrt(scale)
+
+    @property
+    def n_obstacles(self) -> int:
+        """Obstacles in every world, the laser's indices: fixed, moving and drawn circles, then
+        fixed and drawn rectangles."""
+        return (len(self.circles) + self.n_moving + self.random_circles + len(self.rectangles)
+                + self.random_rectangles)
+
+    def checked_fields(self, prefix: str) -> dict[str, Any]:
+        """Every field's range; whether the starts can always be placed is the world's question
+        (:func:`flock_torchrl.world.spawn.check_spawn_feasible`, asked once per scenario). The
+        obstacle lists come back as lists of floats."""
+        k = lambda name: dotted(prefix, name)  # noqa: E731
+        choice(k("reading"), self.reading, READINGS)
+        # Bounds keep a config from asking for more than any machine holds (the world's
+        # [B, N, N] pairwise terms, the episode loop): far above every use, well below overflow.
+        count(k("n_uavs"), self.n_uavs, 1, MAX_UAVS)
+        count(k("max_steps"), self.max_steps, 1, 10**7)
+        count(k("n_beams"), self.n_beams, 1, 3600)
+        for name in ("n_scan", "n_cam"):
+            count(k(name), getattr(self, name), 1, 100)
+        count(k("spawn_max_tries"), self.spawn_max_tries, 1, 10**5)
+        count(k("spawn_reference_uavs"), self.spawn_reference_uavs, 1)
+        count(k("n_moving"), self.n_moving, 0, 1000)
+        # Lengths and speeds against the world: at most 1e6 m and 1e4 s, so float32 positions
+        # stay exact to about a metre's millionth over an episode.
+        for name in ("dt", "tau_v"):
+            positive(k(name), getattr(self, name), 1e4)
+        for name in ("v_max", "goal_radius", "camera_range", "laser_range", "area_size", "goal_scale",
+                     "spawn_radius", "rep_range"):
+            positive(k(name), getattr(self, name), 1e6)
+        positive(k("fov"), self.fov, 2 * math.pi + 1e-9)
+        for name in ("collision_distance", "safe_distance", "rep_gain", "heading_speed_threshold",
+                     "spawn_separation", "spawn_clearance", "d_env", "noise_scan", "noise_distance", "noise_angle",
+                     "moving_speed", "moving_clearance", "moving_radius"):
+            non_negative(k(name), getattr(self, name), 1e6)
+        if self.n_scan > self.n_beams:
+            reject(k("n_scan"), f"cannot exceed n_beams={self.n_beams}, got {self.n_scan}")
+        choice(k("fov_convention"), self.fov_convention, ("total", "half_angle"))
+        choice(k("collision_reward_source"), self.collision_reward_source, ("scan", "min_uav_scan"))
+        choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
+        if len(self.area_center) != 2 or not all(is_number(v) for v in self.area_center):
+            reject(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
+        lists: dict[str, list[list[float]]] = {}
+        for name, size, shape in (("circles", 3, "[cx, cy, radius > 0]"),
+                                  ("rectangles", 4, "[cx, cy, width > 0, height > 0]")):
+            entries = getattr(self, name)
+            for i, entry in enumerate(entries):
+                ok = isinstance(entry, (list, tuple)) and len(entry) == size and all(is_number(v) for v in entry)
+                if not ok or not all(v > 0 for v in entry[2:]):
+                    reject(k(name), f"entry {i} must be {shape}, got {entry!r}")
+            lists[name] = [[float(v) for v in entry] for entry in entries]
+        circles, rectangles = lists["circles"], lists["rectangles"]
+        for i, a in enumerate(circles):
+            for j, b in enumerate(circles[i + 1:], i + 1):
+                if math.hypot(a[0] - b[0], a[1] - b[1]) < a[2] + b[2]:
+                    reject(k("circles"), f"circles {i} and {j} overlap")
+            for j, r in enumerate(rectangles):
+                if _circle_rect_overlap(a, r):
+                    reject(k("circles"), f"circle {i} overlaps rectangle {j}")
+        for i, a in enumerate(rectangles):
+            for j, b in enumerate(rectangles[i + 1:], i + 1):
+                if _rect_rect_overlap(a, b):
+                    reject(k("rectangles"), f"rectangles {i} and {j} overlap")
+        if self.n_moving:
+            positive(k("moving_radius"), self.moving_radius, 1e6)
+            if len(self.moving_box) != 2 or not self.moving_box[0] < self.moving_box[1]:
+                reject(k("moving_box"), f"must be [low, high] with low < high, got {list(self.moving_box)}")
+        self._check_random_obstacles(k)
+        return lists
+
+    def _check_random_obstacles(self, k: Any) -> None:
+        """The drawn obstacles' fields (always, so a typo shows before a count makes it matter);
+        whether they can always be placed is :func:`flock_torchrl.world.forest.check_forest_feasible`."""
+        for name in ("random_circles", "random_rectangles"):
+            count(k(name), getattr(self, name), 0, 1000)
+        for name in ("random_circle_radius", "random_rectangle_size"):
+            low_high = list(getattr(self, name))
+            if not (len(low_high) == 2 and all(is_number(v) and 0 < v <= 1e6 for v in low_high)
+                    and low_high[0] <= low_high[1]):
+                reject(k(name), f"must be [min, max] with 0 < min <= max <= 1e6 (m), got {low_high}")
+        region = list(self.random_region)
+        if not (len(region) == 4 and all(is_number(v) and abs(v) <= 1e6 for v in region)
+                and region[0] < region[2] and region[1] < region[3]):
+            reject(k("random_region"), f"must be [x0, y0, x1, y1] with x0 < x1, y0 < y1, inside [-1e6, 1e6]^2 (m), "
+                                      f"got {region}")
+        non_negative(k("random_clearance"), self.random_clearance, 1e6)
+        width, height = region[2] - region[0], region[3] - region[1]
+        if self.random_circles and 2 * self.random_circle_radius[1] > min(width, height):
+            reject(k("random_region"), f"{width:g} m x {height:g} m cannot hold a circle of radius "
+                                      f"{self.random_circle_radius[1]:g} m (random_circle_radius)")
+        if self.random_rectangles and self.random_rectangle_size[1] > min(width, height):
+            reject(k("random_region"), f"{width:g} m x {height:g} m cannot hold a rectangle side of "
+                                      f"{self.random_rectangle_size[1]:g} m (random_rectangle_size)")
+
+
+def _rect_rect_overlap(a: Sequence[float], b: Sequence[float]) -> bool:
+    return abs(a[0] - b[0]) < (a[2] + b[2]) / 2 and abs(a[1] - b[1]) < (a[3] + b[3]) / 2
+
+
+def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
+    dx = max(abs(c[0] - r[0]) - r[2] / 2, 0.0)
+    dy = max(abs(c[1] - r[1]) - r[3] / 2, 0.0)
+    return math.hypot(dx, dy) < c[2]
+
+
+SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
+# The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
+# interface): a checkpoint records them, and evaluation applies them in any scenario.
+POLICY_SCENARIO_FIELDS = ("fov", "instinct", "tangential", "collision_reward_source", "action_mode")
+READINGS = ("literal", "paper_fit")
+
+
+__all__ = ["ConfigError", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS", "ScenarioConfig"]

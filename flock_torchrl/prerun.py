@@ -1,0 +1,248 @@
+"""What the command-line apps check before Hydra creates anything, beyond a config's schema:
+the output folder can be written, a resumed run folder is where its ``resume.yaml`` says, the
+sweep's jobs (enumerated with Hydra's public override parser), its launcher and its direction,
+the YAML files a command line adds; and where a bad value came from (:func:`blame`), so that an
+error names the command line's override or the file that set it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import itertools
+import re
+import shutil
+import tempfile
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+import yaml
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from omegaconf import DictConfig, OmegaConf, read_write
+
+from .config import ConfigError, config_folder
+from .io import write_failure
+from .run.run_folder import RESUME_CONFIG
+
+
+class AppError(Exception):
+    """An error a job reports as one line (exit status 2)."""
+
+
+def check_writable(folder: Path, key: str) -> None:
+    """Refuse an output folder that cannot be made or written, before Hydra creates it: a file
+    tried in its nearest existing folder (and removed at once) must be writable."""
+    probe = Path(folder).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(key, f"{folder} cannot be made: {probe} is a file, not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as exc:
+        why = (write_failure(OSError(exc.errno, exc.strerror, str(probe))) or
+               f"cannot write {probe}: {exc.strerror}")
+        raise ConfigError(key, f"{folder} cannot be written ({why})") from None
+
+
+
+def covers(a: str, b: str) -> bool:
+    """Dotted keys ``a`` and ``b`` are the same, or one holds the other (``x.y`` and ``x.y[0]``, ``x.y.z``)."""
+    return a == b or any(b.startswith(a + sep) or a.startswith(b + sep) for sep in ".[")
+
+
+def blame(config: DictConfig, key: str, also: tuple[str, ...] = ()) -> tuple[str, str | None]:
+    """The key to name for an error about ``key`` (or, when the user set one of them on the
+    command line, one of ``also``) and where its value came from: the command line's override,
+    the YAML file of its group that sets it, or ``None`` (a default, or not known)."""
+    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
+    if hydra is None:
+        return key, None
+    choices = set(hydra.runtime.choices)
+    for candidate in (key, *also):
+        for override in hydra.overrides.task:
+            name = str(override).lstrip("+~").split("=")[0]
+            if name == candidate or (name not in choices and covers(name, candidate)):  # not a group's choice
+                return candidate, f"the command line's {override}"
+    return key, source_of(config, key)
+
+
+def sets(text: str, path: list[str]) -> bool:
+    """The YAML ``text`` sets the nested key ``path``."""
+    try:
+        node: Any = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    for part in path:
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
+
+
+def source_of(config: DictConfig, key: str) -> str | None:
+    """The YAML file behind the group a dotted ``key`` belongs to (``scenario.n_uavs`` ->
+    ``.../scenario/corridor.yaml``) when that file sets it, from the composed config's own
+    record of its choices and search path; ``None`` when it is not a file."""
+    group = (key or "").split(".")[0]
+    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
+    if not group or hydra is None:
+        return None
+    inner = [p for p in re.sub(r"\[\d+\]", "", key).split(".")[1:] if p]
+    choice = hydra.runtime.choices.get(group)
+    if not choice:
+        return None
+    for source in hydra.runtime.config_sources:
+        path, schema = str(source.path), str(source.schema)
+        try:
+            if schema == "file":
+                candidate = Path(path) / group / f"{choice}.yaml"
+                if candidate.is_file():
+                    return str(candidate) if sets(candidate.read_text(), inner) else None
+            elif schema == "pkg":
+                candidate = files(path) / group / f"{choice}.yaml"
+                if candidate.is_file():
+                    return f"pkg://{path}/{group}/{choice}.yaml" if sets(candidate.read_text(), inner) else None
+        except (ModuleNotFoundError, TypeError, ValueError):
+            continue
+    return None
+
+
+
+def check_resume_folder(config: DictConfig) -> None:
+    """A ``resume.yaml`` written before run folders could move names its folder by its absolute
+    path: read from a copy or a moved folder, it would continue (or miss) the original."""
+    if str(config.hydra.job.config_name) != RESUME_CONFIG:
+        return
+    folder = Path(config_folder(config.hydra.runtime.config_sources, RESUME_CONFIG))
+    out = Path(str(config.hydra.run.dir)).resolve()
+    chosen = any(str(o).startswith("hydra.run.dir=") for o in config.hydra.overrides.hydra)
+    if out != folder and not chosen:
+        raise ConfigError("hydra.run.dir", f"{folder / (RESUME_CONFIG + '.yaml')} names another run folder, {out} "
+                                           f"(it was copied or moved); pass hydra.run.dir={folder} to continue "
+                                           "this one (nothing was changed)")
+
+
+def sweep_jobs(config: DictConfig) -> list[list[str]] | None:
+    """The task overrides of every job of a sweep whose values are lists or ranges (the
+    cartesian product, as Hydra's basic sweeper makes it); ``None`` for another sweeper or a
+    sweep it cannot enumerate. Only Hydra's public override parser is used."""
+    sweeper = str(config.hydra.sweeper.get("_target_", ""))
+    if not sweeper.endswith("BasicSweeper"):
+        return None
+    parsed = OverridesParser.create().parse_overrides([str(o) for o in config.hydra.overrides.task])
+    axes = []
+    for override in parsed:
+        if override.is_hydra_override():
+            continue
+        if not override.is_sweep_override():
+            axes.append([override.input_line])
+        elif override.is_discrete_sweep() and not override.value_type.name.startswith("GLOB"):
+            key = override.get_key_element()
+            axes.append([f"{key}={value}" for value in override.sweep_string_iterator()])
+        else:
+            return None
+    return [list(job) for job in itertools.product(*axes)]
+
+
+LAUNCHER_EXTRAS = {"hydra_plugins.hydra_submitit_launcher": "slurm", "hydra_plugins.hydra_joblib_launcher": "",
+                    "hydra_plugins.hydra_optuna_sweeper": "optuna"}
+
+
+def check_launcher(config: DictConfig) -> None:
+    """A launcher or sweeper that cannot start: its plugin not installed (say which extra
+    installs it), or Slurm's launcher where no ``srun`` is on the PATH (submitit would raise
+    only after Hydra wrote the sweep's ``multirun.yaml``)."""
+    for node in ("launcher", "sweeper"):
+        target = str(config.hydra[node].get("_target_", ""))
+        module = ".".join(target.split(".")[:2])
+        if module.startswith("hydra_plugins.") and importlib.util.find_spec(module) is None:
+            extra = LAUNCHER_EXTRAS.get(module)
+            hint = f"pip install 'flock_torchrl[{extra}]'" if extra else f"pip install {module.split('.')[1]}"
+            raise AppError(f"hydra/{node}: the plugin {module} is not installed ({hint})")
+    launcher = str(config.hydra.launcher.get("_target_", ""))
+    if launcher.endswith(".SlurmLauncher") and shutil.which("srun") is None:
+        raise AppError("hydra/launcher=slurm: this machine has no Slurm (no srun on the PATH); run the sweep on a "
+                       "Slurm login node, or locally with hydra/launcher=local")
+
+
+# What each train objective asks of a sweeper (every one is a rate or a return: larger is better).
+OBJECTIVE_DIRECTIONS = {"success_rate": "maximize", "safe_success_rate": "maximize", "return": "maximize"}
+
+
+def direction_names(value: Any) -> list[str]:
+    """``maximize`` / ``Direction.maximize`` / a list of them -> their names."""
+    values = list(value) if isinstance(value, (list, tuple)) or OmegaConf.is_list(value) else [value]
+    return [str(getattr(v, "name", v)).split(".")[-1].lower() for v in values]
+
+
+def sweep_direction(config: DictConfig) -> None:
+    """Optuna's ``direction`` follows the train app's ``objective`` (the plugin's default,
+    ``minimize``, would minimise success): set from the objective unless the command line sets
+    it; one set there that contradicts the objective is a config error. Runs before Hydra
+    instantiates the sweeper (``on_multirun_start``)."""
+    sweeper = config.hydra.sweeper
+    if not str(sweeper.get("_target_", "")).endswith("OptunaSweeper") or "objective" not in config:
+        return
+    want = OBJECTIVE_DIRECTIONS.get(str(config.objective))
+    if want is None:
+        return
+    given = [str(o) for o in config.hydra.overrides.hydra
+             if str(o).lstrip("+~").split("=")[0] == "hydra.sweeper.direction"]
+    if given:
+        wrong = [d for d in direction_names(sweeper.direction) if d != want]
+        if wrong:
+            raise ConfigError("hydra.sweeper.direction", f"{given[-1]} contradicts objective={config.objective}, "
+                                                         f"which is to {want}; pass hydra.sweeper.direction={want} "
+                                                         "or leave it out (it follows the objective)")
+        return
+    with read_write(sweeper):
+        sweeper.direction = want
+
+
+def config_folders(argv: list[str]) -> list[Path]:
+    """The folders a command line adds to Hydra's search path: ``--config-dir`` / ``-cd`` and the
+    ``file://`` (or plain) entries of ``hydra.searchpath=[...]`` (parsed by Hydra's public
+    override parser)."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--config-dir", "-cd")
+    known, rest = parser.parse_known_args(argv)
+    folders = [Path(known.config_dir)] if known.config_dir else []
+    for arg in rest:
+        if arg.lstrip("+~").startswith("hydra.searchpath="):
+            try:
+                value = OverridesParser.create().parse_overrides([arg])[0].value()
+            except Exception:  # Hydra names a malformed override itself
+                continue
+            for entry in value if isinstance(value, list) else [value]:
+                entry = str(entry)
+                if entry.startswith("file://") or "://" not in entry:
+                    folders.append(Path(entry.removeprefix("file://")))
+    return folders
+
+
+def check_yaml_files(folders: list[Path], depth: int = 4) -> None:
+    """Refuse a YAML file that does not parse in a folder the command line adds to the search
+    path (Hydra would fail on it with a long ``yaml.parser`` traceback), naming the file and
+    the line."""
+    for folder in folders:
+        if not folder.is_dir():
+            continue
+        for path in sorted(folder.rglob("*.yaml")):
+            parts = path.relative_to(folder).parts
+            if len(parts) > depth or any(p.startswith(".") for p in parts[:-1]):
+                continue
+            try:
+                yaml.safe_load(path.read_text())
+            except yaml.YAMLError as exc:
+                mark = getattr(exc, "problem_mark", None)
+                where = f" (line {mark.line + 1}, column {mark.column + 1}: {exc.problem})" if mark else ""
+                raise AppError(f"{path} is not valid YAML{where}") from None
+            except (OSError, UnicodeDecodeError) as exc:
+                raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
+
+
+__all__ = ["AppError", "OBJECTIVE_DIRECTIONS", "blame", "check_launcher", "check_resume_folder", "check_writable",
+           "check_yaml_files", "config_folders", "sweep_direction", "sweep_jobs"]

@@ -1,0 +1,59 @@
+"""The evaluate app (``conf/evaluate.yaml``, ``scripts/evaluate.py``): one policy's shipped seeds,
+a checkpoint or a contender on one scenario by the section 5 protocol, taking its checked config."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+from ..config import ConfigError, EvaluateConfig
+from ..policies.registry import PolicyHandle, contender_handle, resolve, world_label
+from .results import EvaluationResult, write_result
+from .rollout import evaluate_handle, try_contender
+
+
+def evaluated_handles(cfg: EvaluateConfig) -> list[PolicyHandle]:
+    """What ``cfg`` evaluates: the contender, the checkpoint, or the policy's shipped seeds."""
+    if cfg.contender is not None:
+        return [contender_handle(cfg.contender, cfg.device, key="contender")]
+    handles = resolve(cfg.checkpoint or cfg.policy.id, cfg.scenario.reading, cfg.checkpoints_dir,
+                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy)
+    if cfg.checkpoint and handles[0].id != cfg.policy.id:
+        raise ConfigError("policy", f"{cfg.checkpoint} holds {handles[0].name}; pass policy={handles[0].id} so that "
+                                    "its world is composed")
+    return handles
+
+
+def check_evaluation(cfg: EvaluateConfig) -> None:
+    """What the schema cannot check, before any episode: the checkpoints load, and a contender
+    acts on a small batch (a bad one is one line before the first episode)."""
+    handles = evaluated_handles(cfg)
+    if cfg.contender is not None:
+        try_contender(handles[0], cfg.scenario, None, cfg.device, key="contender")
+
+
+def evaluate_app(cfg: EvaluateConfig, out_dir: str | Path, log: Callable[[str], None] = print) -> EvaluationResult:
+    """Evaluate what ``cfg`` names for ``cfg.episodes`` episodes each; write ``episodes.csv`` and
+    ``summary.json`` (the config beside the pooled result) into ``out_dir``. Build ``cfg`` with
+    :func:`flock_torchrl.config.app_config`, e.g. ``app_config("evaluate", policy="policy_ma", scenario="s1")``."""
+    results = []
+    handles = evaluated_handles(cfg)
+    for i, handle in enumerate(handles, 1):
+        log(f"[{i}/{len(handles)}] {handle.name} ({handle.origin}): {cfg.episodes} episodes on {cfg.scenario.name} ...")
+        results.append(evaluate_handle(handle, cfg.scenario, None, cfg.episodes, cfg.seed, cfg.device,
+                                       contender_key="contender", log=log))
+        world = f"; world: {world_label(handle.scenario)}" if handle.kind == "contender" else ""
+        log(f"{results[-1]} [{handle.origin}{world}]")
+    result = EvaluationResult.pooled(results)
+    if len(results) > 1:
+        log(f"pooled over {len(results)} checkpoints: {result}")
+    record = dataclasses.asdict(cfg)
+    if cfg.contender is not None:  # the world it flew in, named in summary.json too
+        record["contender_world"] = {**handles[0].scenario, "label": world_label(handles[0].scenario)}
+    paths = write_result(result, Path(out_dir), record)
+    log("wrote " + " and ".join(str(p) for p in paths))
+    return result
+
+
+__all__ = ["check_evaluation", "evaluate_app", "evaluated_handles"]
