@@ -154,8 +154,7 @@ def _run_figures(cfg: FiguresConfig, out: Path) -> None:
     from .report.figures import make_figures
 
     _set_threads(cfg.threads)
-    make_figures(cfg.scenario.reading, out, figs=list(cfg.figs), checkpoints_dir=cfg.checkpoints_dir, seed=cfg.seed,
-                 device=cfg.device, paper_recipe_dir=cfg.paper_recipe_dir, log=_say)
+    make_figures(cfg, out, log=_say)
 
 
 def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:

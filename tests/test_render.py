@@ -10,7 +10,7 @@ import pytest
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from flock_torchrl import FlockingEnv
+from flock_torchrl import FlockingEnv, app_config
 from flock_torchrl.report.figures import (binned_mean_ci, first_block_reaching, make_figures, plot_trajectory, save_animation,
                                           training_curve, trajectory_grid)
 from flock_torchrl.policies.scripted import goal_seeking_policy
@@ -104,7 +104,8 @@ def test_reward_curves_from_checkpoints(tmp_path):
     # One run, episodes 1..100 -> block 0 with mean (1 + ... + 100) / 100 / 100 = 0.505.
     x, mean, half = binned_mean_ci(e, r, 100)
     assert list(x) == [100.0, 200.0] and mean[0] == pytest.approx(0.505) and (half > 0).all()
-    written = make_figures("literal", tmp_path / "figures", figs=[4], checkpoints_dir=root, log=lambda m: None)
+    written = make_figures(app_config("figures", reading="literal", figs=[4], checkpoints_dir=root), tmp_path / "figures",
+                           log=lambda m: None)
     assert written == [tmp_path / "figures" / f for f in ("fig4_rewards.png", "fig4_convergence.md")]
     assert all(p.is_file() for p in written)
     # Convergence: seed 0's first block (1-100) has mean success 0.85 < 0.9, its second 1.0, so
@@ -116,4 +117,5 @@ def test_reward_curves_from_checkpoints(tmp_path):
     assert "| Policy3-G | seed0 | 200 | 200 | 100.0 % |" in table and "| Policy3-G | seed1 | 200 | — | 0.0 % |" in table
     with pytest.raises(ValueError, match="column must be one of"):
         training_curve(root / "literal" / "policy3_g" / "seed0.pt", "successes")
-    assert make_figures("paper_fit", tmp_path / "figures2", figs=[4], checkpoints_dir=root, log=lambda m: None) == []
+    assert make_figures(app_config("figures", reading="paper_fit", figs=[4], checkpoints_dir=root),
+                        tmp_path / "figures2", log=lambda m: None) == []

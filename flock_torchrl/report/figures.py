@@ -25,7 +25,7 @@ from matplotlib.figure import Figure
 from ..io import atomic_write, write_text
 from ..policies.checkpoint import load_checkpoint
 from ..policies.registry import shipped_checkpoints
-from ..config import EVAL_SEED
+from ..config import FiguresConfig
 from ..run.rollout import rollout_episode
 from ..run.trainer import EPISODE_COLUMNS
 from ..world.frame import (DPI, draw_moving, draw_obstacles, draw_static, draw_uavs, frame_image, image_size, rollout_states,
@@ -287,10 +287,11 @@ def _curves(names: Sequence[str], folder: Path) -> dict[str, list[tuple[np.ndarr
     return curves
 
 
-def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] = (4, 5, 6),
-                 checkpoints_dir: str | os.PathLike = "checkpoints", seed: int = EVAL_SEED, device: str = "cpu",
-                 paper_recipe_dir: str | os.PathLike | None = None, log: Callable[[str], None] = print) -> list[Path]:
-    """Write the paper's figures of one reading into ``out_dir``.
+def make_figures(cfg: FiguresConfig, out_dir: str | os.PathLike, log: Callable[[str], None] = print) -> list[Path]:
+    """``conf/figures.yaml``'s app: the paper's figures ``cfg.figs`` of the reading
+    ``cfg.scenario.reading`` into ``out_dir``, from ``cfg.checkpoints_dir`` (and
+    ``cfg.paper_recipe_dir``), episodes seeded ``cfg.seed``. Build ``cfg`` with
+    :func:`flock_torchrl.config.app_config`, e.g. ``app_config("figures", reading="literal", figs=[4])``.
 
     * ``fig4_rewards.png``: training reward per learned policy, all its shipped seeds pooled
       (the checkpoints carry their training curves), the paper recipe's Policy3-G dashed beside
@@ -304,6 +305,8 @@ def make_figures(reading: str, out_dir: str | os.PathLike, figs: Sequence[int] =
 
     Missing checkpoints are skipped with a message (an empty panel says why).
     """
+    reading, figs, seed, device = cfg.scenario.reading, list(cfg.figs), cfg.seed, cfg.device
+    checkpoints_dir, paper_recipe_dir = cfg.checkpoints_dir, cfg.paper_recipe_dir
     out = Path(out_dir)
     written: list[Path] = []
     names = [e.policy for e in table_entries(3)]
