@@ -52,10 +52,10 @@ class BenchmarkConfig(Schema):
     device: str = MISSING
     threads: int = MISSING
 
-    def check(self, prefix: str | None = None) -> "BenchmarkConfig":
+    def checked_fields(self, prefix: str) -> dict[str, Any]:
         check_device("device", self.device)
         check_threads("threads", self.threads)
-        return self._mark_checked()
+        return {}
 
 
 def checked(cfg: Any) -> BenchmarkConfig:

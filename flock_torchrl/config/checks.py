@@ -162,12 +162,6 @@ class Schema:
     def is_checked(self) -> bool:
         return bool(self.__dict__.get("_checked"))
 
-    def _mark_checked(self: S) -> S:
-        """For a schema outside the package that overrides :meth:`check` and checks without
-        changing a field (``benchmarks/throughput.py``'s): it marks itself checked."""
-        object.__setattr__(self, "_checked", True)
-        return self
-
     @classmethod
     def structured(cls, node: Any) -> Any:
         """``node`` as a plain container OmegaConf can merge into this schema (a hook for schemas
