@@ -18,7 +18,8 @@ from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
 from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout
-from .state import ACTION, STATE_KEYS, check_like, check_state, checked_action, empty_state, fill_absent
+from .state import (ACTION, STATE_KEYS, check_like, check_seed, check_state, checked_action, empty_state, fill_absent,
+                    torch_device)
 from .step import noise_draws, sense, transition, world_obstacles
 
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
@@ -28,33 +29,6 @@ EXTRAS = {
     "command": (("agents", "command"), ("agents", "instinct")),
     "laser": (("agents", "scan"), ("agents", "scan_obstacle")),
 }
-
-
-def _check_seed(seed: Any) -> None:
-    """``seed``: ``None`` or an integer in [0, 2**64 - 1] (what the env's generators take)."""
-    import operator
-
-    if seed is None:
-        return
-    try:
-        value = operator.index(seed)
-    except TypeError:
-        value = None
-    if value is None or isinstance(seed, bool) or not 0 <= value < 2**64:
-        raise ValueError(f"seed must be None or an integer in [0, 2**64 - 1], got {seed!r}")
-
-
-def _device(device: Any) -> torch.device:
-    """``device`` as a torch device; one the machine lacks (CUDA without CUDA) is a ``ValueError``
-    naming ``device``."""
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError) as exc:
-        raise ValueError(f"device {device!r} is not a torch device ({' '.join(str(exc).split())})") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {device!r}: this machine has no CUDA device (torch {torch.__version__}, "
-                         f"CUDA {torch.version.cuda or 'not compiled in'}); use device='cpu'")
-    return dev
 
 
 class FlockingEnv(EnvBase):
@@ -126,8 +100,8 @@ class FlockingEnv(EnvBase):
         check_spawn_feasible(cfg)
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        _check_seed(seed)
-        super().__init__(device=_device(device), batch_size=torch.Size([num_envs]))
+        check_seed(seed)
+        super().__init__(device=torch_device(device), batch_size=torch.Size([num_envs]))
         self.cfg = cfg
         self.num_envs = num_envs
         self.n_agents = cfg.n_uavs
@@ -349,7 +323,7 @@ class FlockingEnv(EnvBase):
     def set_seed(self, seed: int | None = None, static_seed: bool = False) -> int | None:
         """TorchRL's ``set_seed``; a seed that is not an integer in [0, 2**64 - 1] is a
         ``ValueError`` naming ``seed``."""
-        _check_seed(seed)
+        check_seed(seed)
         return super().set_seed(seed, static_seed)
 
     def _set_seed(self, seed: int | None) -> None:

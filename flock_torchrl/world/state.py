@@ -12,6 +12,7 @@ env's world TensorDict.
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -153,5 +154,30 @@ def check_like(world: Any, reference: Any, parts: tuple[str, ...], what: str) ->
                 raise ValueError(f"{what} {key!r}: has dtype {got.dtype}, expected {value.dtype}")
 
 
-__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_like", "check_state", "checked_action",
-           "empty_state", "fill_absent", "state_shapes", "world_state"]
+def check_seed(seed: Any) -> None:
+    """``seed``: ``None`` or an integer in [0, 2**64 - 1] (what the env's generators take)."""
+    if seed is None:
+        return
+    try:
+        value = operator.index(seed)
+    except TypeError:
+        value = None
+    if value is None or isinstance(seed, bool) or not 0 <= value < 2**64:
+        raise ValueError(f"seed must be None or an integer in [0, 2**64 - 1], got {seed!r}")
+
+
+def torch_device(device: Any) -> torch.device:
+    """``device`` as a torch device; one the machine lacks (CUDA without CUDA) is a ``ValueError``
+    naming ``device``."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ValueError(f"device {device!r} is not a torch device ({' '.join(str(exc).split())})") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r}: this machine has no CUDA device (torch {torch.__version__}, "
+                         f"CUDA {torch.version.cuda or 'not compiled in'}); use device='cpu'")
+    return dev
+
+
+__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_like", "check_seed", "check_state", "checked_action",
+           "empty_state", "fill_absent", "state_shapes", "world_state", "torch_device"]
