@@ -116,7 +116,7 @@ def test_quoted_blocks_equal_the_files_that_write_them():
         assert stale_blocks(doc, ROOT) == [], f"{doc.name}: run `make docs` / `make readme-demo`"
     quoted = [p for p, _, _ in blocks((ROOT / "docs" / "results.md").read_text())]
     assert {"results/paper_fit/summary.md", "results/literal/summary.md"} <= set(quoted)
-    assert [p for p, _, _ in blocks(README.read_text())] == ["docs/demo.md"]
+    assert [p for p, _, _ in blocks(README.read_text())] == ["docs/demo.md", "results/paper_fit/claims_overview.md"]
 
 
 def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_path):
