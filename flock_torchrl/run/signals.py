@@ -9,12 +9,9 @@
 * Worker processes start where a signal cannot reach them half-started (:func:`start_workers`).
 * Multiprocessing's resource tracker starts with them ignored (:func:`start_resource_tracker`).
 
-* In an app (:func:`note_until_checked`, :func:`arm`): before the run is checked (Hydra
-  composing, a config converting) a signal is only noted, since an exception raised at an
-  arbitrary bytecode there could break a library's clean-up and surface as another error;
-  once the run is checked a noted signal stops the process, and later ones raise
-  :class:`Stopped` at once. ``scripts/train.py`` notes signals itself while Python imports torch
-  and the package (before this module can be imported) and hands them to the app.
+An app's own signal handling (noting signals until its run is checked, then arming them) is
+still ``flock_torchrl/cli.py``'s; ``scripts/train.py`` notes signals while Python imports torch
+and the package, and hands them to the app.
 """
 
 from __future__ import annotations
@@ -185,73 +182,5 @@ def start_workers(make: Any, poll: float = 0.05, grace: float = 5.0) -> Any:
     return box["collector"]
 
 
-# ---------------------------------------------------------------------------- the apps
-# Signals noted before the run was checked, and the process that started the app (a launcher's
-# worker processes keep their own handlers).
-NOTED: list[int] = []
-_app = {"pid": 0}
-# Set in a joblib worker whose job a signal stopped: its later jobs do not start. (An environment
-# variable: the launcher pickles the task by value.)
-STOPPED_WORKER = "FLOCK_TORCHRL_SWEEP_STOPPED"
-# A launcher that runs the jobs in worker processes of this one (joblib): the variable names
-# this process, so that a job knows that its sweep's parent waits for every job.
-SWEEP_PARENT = "FLOCK_TORCHRL_SWEEP_PARENT"
-
-
-def note(signum: int, frame: Any = None) -> None:
-    NOTED.append(signum)
-
-
-def stop(signum: int, frame: Any = None) -> None:
-    raise Stopped(signum)
-
-
-def note_until_checked(noted: Any = ()) -> None:
-    """An app starts in this process: until its run is checked, a stop signal is only noted
-    (``noted``: those a script noted while it imported the package)."""
-    _app["pid"] = os.getpid()
-    NOTED.clear()
-    for signum in STOP_SIGNALS:
-        signal.signal(signum, note)
-    NOTED.extend(noted or [])  # after the handlers moved here, so none is lost between
-
-
-def arm(jobs_elsewhere: bool = False) -> None:
-    """The run is checked: stop on a noted signal, and at once on later ones (in the process
-    that started the app). With ``jobs_elsewhere`` (a joblib sweep), later signals are only
-    noted: the workers stop their jobs, each with its checkpoint and its resume line, and this
-    process waits for all of them and then exits with 128 + the signal (:func:`sweep_stopped`)."""
-    if _app["pid"] != os.getpid():
-        return
-    if NOTED:
-        raise Stopped(NOTED[0])
-    if jobs_elsewhere:
-        os.environ[SWEEP_PARENT] = str(os.getpid())
-        return
-    for signum in STOP_SIGNALS:
-        signal.signal(signum, stop)
-
-
-def in_sweep_worker() -> bool:
-    """This process runs a job for a sweep's parent that waits for every job (joblib)."""
-    return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and _app["pid"] != os.getpid()
-
-
-def worker_stopped_by() -> int:
-    """The signal that stopped an earlier job of this sweep worker (0: none)."""
-    return int(os.environ.get(STOPPED_WORKER, "0") or 0)
-
-
-def mark_worker_stopped(signum: int) -> None:
-    os.environ[STOPPED_WORKER] = str(int(signum))
-
-
-def sweep_stopped() -> int:
-    """In a joblib sweep's parent: the signal its jobs were stopped by (0: none)."""
-    return NOTED[0] if NOTED and os.environ.get(SWEEP_PARENT) == str(os.getpid()) else 0
-
-
-__all__ = ["NOTED", "STOPPED_WORKER", "SWEEP_PARENT", "arm", "in_sweep_worker", "mark_worker_stopped", "note",
-           "note_until_checked", "stop", "sweep_stopped", "worker_stopped_by",
-           "SHUTDOWN_TIMEOUT", "STOP_SIGNALS", "Signals", "Stopped", "TrainingInterrupted", "ignore_stop_signals",
+__all__ = ["SHUTDOWN_TIMEOUT", "STOP_SIGNALS", "Signals", "Stopped", "TrainingInterrupted", "ignore_stop_signals",
            "shutdown", "start_resource_tracker", "start_workers"]
