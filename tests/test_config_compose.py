@@ -206,7 +206,7 @@ def test_every_train_composition_keeps_the_values_main_composed():
     """conf/train.yaml for every policy x experiment x reading composes exactly the values it
     composed before configuration became a package and the learner settings moved into the
     experiment files (tests/data/composed_train_configs.json, written from main by
-    tests/data/make_composed_reference.py before the change)."""
+    tests/data/make_composed_reference.py before the change), but the fields added since."""
     import json
     from pathlib import Path
 
@@ -220,6 +220,8 @@ def test_every_train_composition_keeps_the_values_main_composed():
         policy, experiment, reading = name.split("/")
         cfg = compose("train", [f"policy={policy}", f"experiment={experiment}", f"reading={reading}"])
         tree = json.loads(json.dumps(OmegaConf.to_container(cfg, resolve=True)).replace(shipped, "<checkpoints>"))
+        # Added since: the instinct's crowd mode, the paper's for each of the twelve.
+        assert tree["scenario"].pop("instinct_mode") == "paper", name
         assert set(tree) == set(entry), name
         for key, digest in entry.items():
             assert tree[key] == nodes[digest], f"{name}: {key}"

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from flock_torchrl.world.instinct import instinct_command, repulsion, rotate_90
+from flock_torchrl.world.instinct import hold_in_crowd, instinct_command, repulsion, rotate_90
 from flock_torchrl.world.sensors import observe_neighbours
 
 PI = math.pi
@@ -175,3 +175,53 @@ def test_env_instinct_from_an_obstacle(make_env, place, step_with):
     out = step_with(env, [[[0.0, 0.0]]])
     assert out["agents", "instinct"][0].tolist() == [True]
     assert out["agents", "command"][0, 0].tolist() == pytest.approx([-3.0, 3.0], abs=1e-5)
+
+
+# ---------------------------------------------------------------- crowd modes (beyond the paper)
+def crowd(uav, beam0, mode, cap=None):
+    """hold_in_crowd for one UAV at heading 0 whose shortest beam is beam 0 (+x) at ``beam0`` m."""
+    beams = torch.full((1, 1, 36), 10.0)
+    beams[0, 0, 0] = beam0
+    return hold_in_crowd(torch.tensor([[uav]]), mode, beams=beams, heading=torch.zeros(1, 1), gain=1.0, r0=5.0,
+                         safe_distance=2.0, cap=cap)[0, 0].tolist()
+
+
+def test_hold_in_crowd_by_hand():
+    # The obstacle's return point is (3, 0): outward normal n = (-1, 0).
+    # no_push_in: (4, 1) . n = -4 < 0 -> remove -4 n: (4, 1) - (4, 0) = (0, 1).
+    assert crowd([4.0, 1.0], 3.0, "no_push_in") == pytest.approx([0.0, 1.0])
+    # A push away from the obstacle ((-2, 1) . n = 2 > 0) stays; so does any push when the beam is beyond r0.
+    assert crowd([-2.0, 1.0], 3.0, "no_push_in") == pytest.approx([-2.0, 1.0])
+    assert crowd([4.0, 1.0], 6.0, "no_push_in") == pytest.approx([4.0, 1.0])
+    # saturated: at most gain (r0 - d_safe) = 3 m/s: (3, 4) (length 5) -> 3/5 (3, 4) = (1.8, 2.4); (1, 1) stays.
+    assert crowd([3.0, 4.0], 3.0, "saturated") == pytest.approx([1.8, 2.4])
+    assert crowd([1.0, 1.0], 3.0, "saturated") == pytest.approx([1.0, 1.0])
+    assert crowd([3.0, 4.0], 3.0, "saturated", cap=2.5) == pytest.approx([1.5, 2.0])
+    assert crowd([3.0, 4.0], 3.0, "paper") == pytest.approx([3.0, 4.0])
+    with pytest.raises(ValueError, match="instinct mode"):
+        crowd([3.0, 4.0], 3.0, "nearest")
+
+
+@pytest.mark.parametrize("mode, command", [("paper", [0.5, 3.0]), ("no_push_in", [-3.0, 3.0]),
+                                           ("saturated", [-3.5 + 3 / math.sqrt(2), 3.0])])
+def test_env_instinct_modes(make_env, place, step_with, mode, command):
+    # Training world; UAV 0 at (32.5, 40) faces -x (heading pi), its back 1.5 m from the circle
+    # (40, 40) r 6 (beam 18 returns 1.5 m: triggered); UAV 1 1 m ahead of it, at (31.5, 40), visible.
+    # Goal (32.5, 80): to_goal (0, 40).
+    #   UAVs' part: v_r = (5 - 1)(1, 0) = (4, 0); +90: (0, 4), .(0, 40) > 0: (4, 4).
+    #   Obstacle's part: v_r = (5 - 1.5)(-1, 0) = (-3.5, 0); +90: (0, -3.5) -> flipped (0, 3.5): (-3.5, 3.5).
+    #   paper: (0.5, 7.5) -> clip 3 per axis: (0.5, 3).
+    #   no_push_in: n = (-1, 0), (4, 4) . n = -4 removed: (0, 4); sum (-3.5, 7.5) -> (-3, 3).
+    #   saturated: (4, 4) -> 3 / (4 sqrt 2) (4, 4) = (3/sqrt 2, 3/sqrt 2); sum (-3.5 + 2.121, 5.621) -> y clip 3.
+    env = place(make_env("train", n_uavs=2, instinct=True, instinct_mode=mode),
+                [[[32.5, 40.0], [31.5, 40.0]]], [[PI, PI]], [[32.5, 80.0]])
+    out = step_with(env, [[[0.0, 0.0], [0.0, 0.0]]])
+    assert out["agents", "instinct"][0, 0].item() is True
+    assert out["agents", "command"][0, 0].tolist() == pytest.approx(command, abs=1e-5)
+
+
+def test_instinct_mode_is_checked(make_env):
+    from flock_torchrl.config import ConfigError
+
+    with pytest.raises(ConfigError, match="instinct_mode"):
+        make_env("train", instinct_mode="nearest")

@@ -55,6 +55,7 @@ class ScenarioConfig(Schema):
     rep_gain: float = MISSING
     rep_range: float = MISSING
     safe_distance: float = MISSING
+    instinct_mode: str = MISSING             # paper (Eq. 29) | no_push_in | saturated (beyond the paper)
     # --- action interface: policy (Eq. 19-20) | velocity (the rule-based controllers)
     action_mode: str = MISSING
     # --- reward (section 4): scan | min_uav_scan (Policy4-G)
@@ -148,6 +149,7 @@ class ScenarioConfig(Schema):
         choice(k("fov_convention"), self.fov_convention, ("total", "half_angle"))
         choice(k("collision_reward_source"), self.collision_reward_source, ("scan", "min_uav_scan"))
         choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
+        choice(k("instinct_mode"), self.instinct_mode, INSTINCT_MODES)
         if len(self.area_center) != 2 or not all(is_number(v) for v in self.area_center):
             reject(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
         lists: dict[str, list[list[float]]] = {}
@@ -216,8 +218,12 @@ def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
 SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 # The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
 # interface): a checkpoint records them, and evaluation applies them in any scenario.
-POLICY_SCENARIO_FIELDS = ("fov", "instinct", "tangential", "collision_reward_source", "action_mode")
+POLICY_SCENARIO_FIELDS = ("fov", "instinct", "tangential", "instinct_mode", "collision_reward_source", "action_mode")
 READINGS = ("literal", "paper_fit")
+# How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
+# ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
+# that hold in a crowd (docs/specification.md section 3; docs/scaling_diagnosis.md measured them).
+INSTINCT_MODES = ("paper", "no_push_in", "saturated")
 
 
-__all__ = ["ConfigError", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS", "ScenarioConfig"]
+__all__ = ["ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS", "ScenarioConfig"]

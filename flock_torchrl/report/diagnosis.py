@@ -34,7 +34,7 @@ from ..policies.registry import PolicyHandle
 from ..run.rollout import policy_env
 from ..world.dynamics import action_to_command, clip_command
 from ..world.geometry import Obstacles, nearest_obstacle_distance
-from ..world.instinct import instinct_parts
+from ..world.instinct import hold_in_crowd, instinct_parts
 from ..world.sensors import Neighbours, beam_return_offset, near_neighbours, smallest
 from ..world.step import obstacles_of
 
@@ -95,17 +95,9 @@ def crowd_instinct(position: torch.Tensor, heading: torch.Tensor, goal: torch.Te
     # The switch, the UAVs' push and the obstacle's push are the world's (world/instinct.py).
     triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
                                               safe_distance=safe_distance, tangential=tangential, pushing=pushing)
-    if mode == "saturated":
-        limit = gain * (r0 - safe_distance) if cap is None else cap
-        norm = torch.linalg.vector_norm(uav, dim=-1, keepdim=True)
-        uav = uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
-    elif mode == "no_push_in":
-        # outward normal of the obstacle the laser sees: from its return point back to the UAV
-        d_scan1, wall = beam_return_offset(beams, heading)
-        seen = (d_scan1 > 0) & (d_scan1 < r0)
-        normal = -wall / d_scan1.clamp_min(1e-12)[..., None]
-        inward = (uav * normal).sum(-1, keepdim=True).clamp_max(0.0)
-        uav = torch.where(seen[..., None], uav - inward * normal, uav)
+    # The crowd variants are the world's (instinct_mode); nearest is this module's own.
+    uav = hold_in_crowd(uav, "paper" if mode == "nearest" else mode, beams=beams, heading=heading, gain=gain,
+                        r0=r0, safe_distance=safe_distance, cap=cap)
     return triggered, uav + obstacle, uav, obstacle
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from ..config.scenario import INSTINCT_MODES
 from .sensors import Neighbours, beam_return_offset
 
 
@@ -82,12 +83,44 @@ def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Te
     return triggered, torch.stack((ux, uy), -1), torch.stack((wx, wy), -1)
 
 
+def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading: torch.Tensor, gain: float,
+                  r0: float, safe_distance: float, shortest: tuple[torch.Tensor, torch.Tensor] | None = None,
+                  cap: float | None = None) -> torch.Tensor:
+    """The UAVs' push ``uav [B, N, 2]`` of :func:`instinct_parts` under an instinct mode.
+
+    - ``paper``: unchanged (Eq. 29).
+    - ``no_push_in``: where the shortest beam returns within ``r0``, the component of the push
+      along the obstacle's inward normal (from the UAV toward the beam's return point) is
+      removed, so a crowd never pushes a UAV into what its laser sees; the outward and
+      tangential components stay.
+    - ``saturated``: the push is scaled down to at most ``cap`` m/s (default ``gain (r0 -
+      d_safe)``, what one UAV at the switch distance gives), its direction kept.
+    """
+    if mode == "paper":
+        return uav
+    if mode == "saturated":
+        limit = gain * (r0 - safe_distance) if cap is None else cap
+        norm = torch.linalg.vector_norm(uav, dim=-1, keepdim=True)
+        return uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
+    if mode == "no_push_in":
+        d_scan1, wall = beam_return_offset(beams, heading, shortest)
+        seen = (d_scan1 > 0) & (d_scan1 < r0)
+        normal = -wall / d_scan1.clamp_min(1e-12)[..., None]  # outward: from the return point to the UAV
+        inward = (uav * normal).sum(-1, keepdim=True).clamp_max(0.0)
+        return torch.where(seen[..., None], uav - inward * normal, uav)
+    raise ValueError(f"instinct mode must be one of {', '.join(INSTINCT_MODES)}; got {mode!r}")
+
+
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                      neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
-                     tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The instinct's switch and command (:func:`instinct_parts` summed): ``(triggered [B, N]
-    bool, command [B, N, 2])``, the command not yet clipped."""
+                     tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None,
+                     mode: str = "paper") -> tuple[torch.Tensor, torch.Tensor]:
+    """The instinct's switch and command (:func:`instinct_parts`, the UAVs' part under
+    :func:`hold_in_crowd`'s ``mode``, summed): ``(triggered [B, N] bool, command [B, N, 2])``,
+    the command not yet clipped."""
     triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
                                               safe_distance=safe_distance, tangential=tangential, shortest=shortest)
+    if mode != "paper":
+        uav = hold_in_crowd(uav, mode, beams=beams, heading=heading, gain=gain, r0=r0,
+                            safe_distance=safe_distance, shortest=shortest)
     return triggered, uav + obstacle

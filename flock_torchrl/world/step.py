@@ -119,7 +119,8 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
          swarm_centre_state(position, heading, cfg.camera_range)), -1)
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
-        safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest)
+        safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest,
+        mode=cfg.instinct_mode)
     return {
         "observation": observation,
         "state": critic_state,
