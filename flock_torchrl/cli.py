@@ -33,6 +33,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from .io import write_failure
+from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
@@ -275,11 +276,11 @@ class PreRunCheck(Callback):
             _guard(lambda: check_resume_folder(config))
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
-        _armed()
+        APP_SIGNALS.arm()
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check_sweep(config)
-        _armed(jobs_elsewhere=_jobs_in_workers(config))
+        APP_SIGNALS.arm(jobs_elsewhere=_jobs_in_workers(config))
 
     def _check_sweep(self, config: DictConfig) -> None:
         _guard(lambda: check_launcher(config))
@@ -302,23 +303,21 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
     def task(cfg: DictConfig) -> Any:
         from hydra.core.hydra_config import HydraConfig
 
-        from .run.trainer import TrainingInterrupted
-
         out = Path(HydraConfig.get().runtime.output_dir)
-        stopped = int(os.environ.get(STOPPED_WORKER, "0") or 0)
-        if stopped and _in_sweep_worker():  # joblib hands out the jobs it holds: they do not start
+        stopped = APP_SIGNALS.worker_stopped()
+        if stopped:  # joblib hands out the jobs it holds: they do not start
             print(f"not started: {out} (the sweep was stopped by {signal.Signals(stopped).name})", file=sys.stderr,
                   flush=True)
             return 128 + stopped
         obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
-        _armed()  # also where no PreRunCheck ran (a config without the callback)
+        APP_SIGNALS.arm()  # also where no PreRunCheck ran (a config without the callback)
         try:
             return _guard(lambda: APPS[app].run(obj, out))
         except TrainingInterrupted as exc:
             print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
                   f"resume with: {exc.command}", file=sys.stderr, flush=True)
-            if _in_sweep_worker():  # an exit here would make joblib cancel the jobs still checkpointing
-                os.environ[STOPPED_WORKER] = str(int(exc.signum))
+            if APP_SIGNALS.in_sweep_worker():  # an exit here would make joblib cancel the jobs still checkpointing
+                APP_SIGNALS.mark_worker_stopped(exc.signum)
                 return exc.exit_status
             raise SystemExit(exc.exit_status) from None
 
@@ -326,68 +325,10 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
     return task
 
 
-# Stop signals before the run is checked are only noted: an exception raised at an arbitrary
-# bytecode inside Hydra's composition or OmegaConf can break their `finally` clean-ups and come
-# out as another error with a traceback (seen under load). Once the run is checked (PreRunCheck,
-# before anything is written), a noted signal stops the process, and later ones raise `Stopped`
-# at once (an evaluation or a table can take minutes; the trainer installs its own handlers).
-_NOTED: list[int] = []
-_MAIN_PID = 0  # the process that called main(); a launcher's workers keep their own handlers
-# Set in a joblib worker whose job a signal stopped: its later jobs do not start. (An environment
-# variable, not a global: the launcher pickles the task by value, with a copy of its globals.)
-STOPPED_WORKER = "FLOCK_TORCHRL_SWEEP_STOPPED"
-
-
-def _note(signum: int, frame: Any) -> None:
-    _NOTED.append(signum)
-
-
-def _stop(signum: int, frame: Any) -> None:
-    from .run.trainer import Stopped
-
-    raise Stopped(signum)
-
-
-def _early_signals() -> None:
-    """Until the run is checked: a stop signal is noted (see :func:`_armed`)."""
-    from .run.trainer import STOP_SIGNALS
-
-    for signum in STOP_SIGNALS:
-        signal.signal(signum, _note)
-
-
-# A launcher that runs the jobs in worker processes of this one (joblib): the variable names
-# this process, so that a job knows that its sweep's parent waits for every job.
-SWEEP_PARENT = "FLOCK_TORCHRL_SWEEP_PARENT"
-
-
 def _jobs_in_workers(config: DictConfig) -> bool:
     """The sweep's launcher runs its jobs in local worker processes (joblib's)."""
     return "joblib" in str(config.hydra.launcher.get("_target_", "")).lower()
 
-
-def _armed(jobs_elsewhere: bool = False) -> None:
-    """The run is checked: stop on a noted signal, and at once on later ones (in the process
-    that started the app; a launcher's worker processes keep their own handlers). With
-    ``jobs_elsewhere`` (a joblib sweep), later signals are only noted: the workers stop their
-    jobs, each with its checkpoint and its resume line, and this process waits for all of them
-    and then exits with 128 + the signal (:func:`main`)."""
-    from .run.trainer import STOP_SIGNALS, Stopped
-
-    if _MAIN_PID != os.getpid():
-        return
-    if _NOTED:
-        raise Stopped(_NOTED[0])
-    if jobs_elsewhere:
-        os.environ[SWEEP_PARENT] = str(os.getpid())
-        return
-    for signum in STOP_SIGNALS:
-        signal.signal(signum, _stop)
-
-
-def _in_sweep_worker() -> bool:
-    """This process runs a job for a sweep's parent that waits for every job (joblib)."""
-    return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and _MAIN_PID != os.getpid()
 
 
 
@@ -396,18 +337,13 @@ def main(app: str, noted: list[int] | None = None) -> Any:
     ``noted``: stop signals a script noted while it imported the package."""
     import hydra
 
-    from .run.trainer import Stopped
-
-    global _MAIN_PID
-    _MAIN_PID = os.getpid()
-    _NOTED.clear()
     try:
-        _early_signals()
-        _NOTED.extend(noted or [])  # after the handlers move here, so none is lost between
+        APP_SIGNALS.start(noted)
         _guard(lambda: check_yaml_files(config_folders(sys.argv[1:])))
         result = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
-        if _NOTED and os.environ.get(SWEEP_PARENT) == str(os.getpid()):  # a joblib sweep stopped: its jobs said so
-            raise SystemExit(128 + _NOTED[0])
+        stopped = APP_SIGNALS.sweep_stopped()
+        if stopped:  # a joblib sweep stopped: its jobs said so
+            raise SystemExit(128 + stopped)
         return result
     except Stopped as stop:
         print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "

@@ -247,3 +247,31 @@ def test_a_checkpoint_of_a_newer_format_says_newer(tmp_path):
     torch.save({"format": "flock_torchrl/checkpoint-v3"}, tmp_path / "new.pt")
     with pytest.raises(CheckpointError, match="newer flock_torchrl"):
         load_checkpoint(tmp_path / "new.pt")
+
+
+def test_app_signals_note_until_the_run_is_checked_then_stop():
+    """run/signals.py's AppSignals, in this process (the handlers are called, not signalled)."""
+    from flock_torchrl.run.signals import STOP_SIGNALS, AppSignals, Stopped
+
+    previous = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
+    app = AppSignals()
+    try:
+        # A signal the script noted while importing stops the run once it is checked.
+        app.start([signal.SIGTERM])
+        with pytest.raises(Stopped) as stop:
+            app.arm()
+        assert stop.value.signum == signal.SIGTERM
+        # Before the check, a signal is only noted ...
+        app.start()
+        signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
+        assert app.noted == [signal.SIGINT]
+        # ... once armed, it stops at once.
+        app.start()
+        app.arm()
+        with pytest.raises(Stopped):
+            signal.getsignal(signal.SIGTERM)(signal.SIGTERM, None)
+        # Not a joblib sweep's parent or worker: nothing stopped a sweep.
+        assert (app.sweep_stopped(), app.worker_stopped(), app.in_sweep_worker()) == (0, 0, False)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

@@ -9,9 +9,10 @@
 * Worker processes start where a signal cannot reach them half-started (:func:`start_workers`).
 * Multiprocessing's resource tracker starts with them ignored (:func:`start_resource_tracker`).
 
-An app's own signal handling (noting signals until its run is checked, then arming them) is
-still ``flock_torchrl/cli.py``'s; ``scripts/train.py`` notes signals while Python imports torch
-and the package, and hands them to the app.
+* In an app, from its start to its run (:class:`AppSignals`, :data:`APP_SIGNALS`): signals
+  are noted until the run is checked, then armed; a joblib sweep's parent waits for its jobs.
+  ``scripts/train.py`` notes signals while Python imports torch and the package (before this
+  module exists) and hands them to :meth:`AppSignals.start`.
 """
 
 from __future__ import annotations
@@ -76,6 +77,83 @@ class Signals:
     def __exit__(self, *exc: Any) -> None:
         for signum, handler in self.previous.items():
             signal.signal(signum, handler)
+
+
+# A launcher that runs the jobs in worker processes of the app's (joblib): the variable names
+# that process, so that a job knows that its sweep's parent waits for every job.
+SWEEP_PARENT = "FLOCK_TORCHRL_SWEEP_PARENT"
+# Set in a joblib worker whose job a signal stopped: its later jobs do not start. (An environment
+# variable, not a Python global: the launcher pickles the task by value, with a copy of its globals.)
+STOPPED_WORKER = "FLOCK_TORCHRL_SWEEP_STOPPED"
+
+
+class AppSignals:
+    """An app's stop signals, before and around its run (the training loop has :class:`Signals`).
+
+    Until the run is checked a signal is only noted: an exception raised at an arbitrary bytecode
+    inside Hydra's composition or OmegaConf can break their ``finally`` clean-ups and come out as
+    another error with a traceback (seen under load). Once the run is checked (before anything is
+    written), :meth:`arm` stops on a noted signal, and later ones raise :class:`Stopped` at once
+    (an evaluation or a table can take minutes; the trainer installs its own handlers).
+    """
+
+    def __init__(self) -> None:
+        self.noted: list[int] = []
+        self.main_pid = 0  # the process that started the app; a launcher's workers keep their own handlers
+
+    def start(self, noted: list[int] | None = None) -> None:
+        """The app starts in this process: note signals from now on, after ``noted`` (those a
+        script noted while it imported the package)."""
+        self.main_pid = os.getpid()
+        self.noted.clear()
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, self._note)
+        self.noted.extend(noted or [])  # after the handlers move here, so none is lost between
+
+    def _note(self, signum: int, frame: Any) -> None:
+        self.noted.append(signum)
+
+    @staticmethod
+    def _stop(signum: int, frame: Any) -> None:
+        raise Stopped(signum)
+
+    def arm(self, jobs_elsewhere: bool = False) -> None:
+        """The run is checked: stop on a noted signal, and at once on later ones (in the process
+        that started the app). With ``jobs_elsewhere`` (a joblib sweep), later signals are only
+        noted: the workers stop their jobs, each with its checkpoint and its resume line, and
+        this process waits for all of them, then exits with 128 + the signal
+        (:meth:`sweep_stopped`)."""
+        if self.main_pid != os.getpid():
+            return
+        if self.noted:
+            raise Stopped(self.noted[0])
+        if jobs_elsewhere:
+            os.environ[SWEEP_PARENT] = str(os.getpid())
+            return
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, self._stop)
+
+    def in_sweep_worker(self) -> bool:
+        """This process runs a job for a sweep's parent that waits for every job (joblib)."""
+        return os.environ.get(SWEEP_PARENT) == str(os.getppid()) and self.main_pid != os.getpid()
+
+    def sweep_stopped(self) -> int:
+        """In a joblib sweep's parent: the signal that stopped its jobs (0: none)."""
+        return self.noted[0] if self.noted and os.environ.get(SWEEP_PARENT) == str(os.getpid()) else 0
+
+    def worker_stopped(self) -> int:
+        """In a joblib worker: the signal that stopped one of its jobs (0: none); its later jobs
+        do not start."""
+        return int(os.environ.get(STOPPED_WORKER, "0") or 0) if self.in_sweep_worker() else 0
+
+    @staticmethod
+    def mark_worker_stopped(signum: int) -> None:
+        """A job of this joblib worker was stopped by ``signum``."""
+        os.environ[STOPPED_WORKER] = str(int(signum))
+
+
+# The app of this process (flock_torchrl.cli.main starts it).
+APP_SIGNALS = AppSignals()
 
 
 def ignore_stop_signals() -> None:
@@ -182,5 +260,5 @@ def start_workers(make: Any, poll: float = 0.05, grace: float = 5.0) -> Any:
     return box["collector"]
 
 
-__all__ = ["SHUTDOWN_TIMEOUT", "STOP_SIGNALS", "Signals", "Stopped", "TrainingInterrupted", "ignore_stop_signals",
+__all__ = ["APP_SIGNALS", "AppSignals", "SHUTDOWN_TIMEOUT", "STOPPED_WORKER", "STOP_SIGNALS", "SWEEP_PARENT", "Signals", "Stopped", "TrainingInterrupted", "ignore_stop_signals",
            "shutdown", "start_resource_tracker", "start_workers"]
