@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import script_env
+from helpers import first_fast, script_env
 
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
@@ -84,7 +84,7 @@ def limit_memory(gib: float):
     return limit
 
 
-@pytest.mark.parametrize("app, args, gib, key", [
+@pytest.mark.parametrize("app, args, gib, key", first_fast([
     ("evaluate.py", ["policy=policy_ma", "episodes=10000000"], None, "episodes: evaluating 10000000 episodes"),
     ("evaluate.py", ["policy=policy_ma", "episodes=1000000"], 8, "episodes: evaluating 1000000 episodes"),
     ("train.py", [*TINY, "experiment.eval_episodes=1000000"], None, "experiment.eval_episodes: the run needs"),
@@ -94,7 +94,7 @@ def limit_memory(gib: float):
     ("evaluate.py", ["policy=policy_ma", "scenario=forest", "scenario.random_circles=1000", "episodes=2",
                      "scenario.random_region=[-1000000,-1000000,1000000,1000000]"], None,
      "scenario.random_region: checking that the swarm and the forest can always be placed needs about"),
-])
+]))
 def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_path, app, args, gib, key):
     proc = script(app, *args, f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120,
                   preexec=limit_memory(gib) if gib else None)
@@ -123,7 +123,7 @@ def test_usable_memory_sees_the_processs_own_limit():
     assert what.startswith("its ulimit -v of 3.0 GiB") and 0 < left < 3 * 2**30, out
 
 
-@pytest.mark.parametrize("scenario, n, worlds", [("s1", 5, 4000), ("s2", 100, 400)])
+@pytest.mark.parametrize("scenario, n, worlds", first_fast([("s1", 5, 4000), ("s2", 100, 400)]))
 def test_the_world_estimate_bounds_the_measured_peak(scenario, n, worlds):
     # Peak resident memory of stepping `worlds` worlds, in a fresh process, against world_bytes.
     code = f"""
@@ -239,7 +239,7 @@ def test_a_file_size_limit_at_checkpoint_time_is_one_line_naming_the_checkpoint(
     assert not (run / "last.pt").exists() and not list(run.glob(".*.tmp"))
 
 
-@pytest.mark.parametrize("how", ["-cd", "searchpath"])
+@pytest.mark.parametrize("how", first_fast(["-cd", "searchpath"]))
 def test_a_broken_yaml_in_the_search_path_is_one_line_naming_the_file(tmp_path, how):
     bad = tmp_path / "mine" / "scenario" / "bad.yaml"
     bad.parent.mkdir(parents=True)
@@ -252,10 +252,10 @@ def test_a_broken_yaml_in_the_search_path_is_one_line_naming_the_file(tmp_path, 
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("args, key", [
+@pytest.mark.parametrize("args, key", first_fast([
     (["hydra.run.dir={blocker}/out"], "hydra.run.dir: {blocker}/out cannot be made: {blocker} is a file"),
     (["-m", "hydra.sweep.dir={blocker}/sweep"], "hydra.sweep.dir: {blocker}/sweep/"),
-])
+]))
 def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, args, key):
     blocker = tmp_path / "a_file"
     blocker.write_text("")
@@ -327,7 +327,7 @@ def test_a_crafted_digest_valid_checkpoint_is_refused_naming_the_field(tmp_path,
     assert "pass reading=weird" not in message
 
 
-@pytest.mark.parametrize("how", ["kind", "nan"])
+@pytest.mark.parametrize("how", first_fast(["kind", "nan"]))
 def test_evaluate_refuses_a_crafted_checkpoint_in_one_line(tmp_path, how):
     bad = crafted(tmp_path / "bad.pt", how)
     proc = script("evaluate.py", f"checkpoint={bad}", "policy=policy3_g", "episodes=2",
@@ -382,7 +382,7 @@ def test_cuda_without_cuda_is_one_line_naming_device():
 
 
 # ---------------------------------------------------------------------------- 9: where a value came from
-@pytest.mark.parametrize("args, line", [
+@pytest.mark.parametrize("args, line", first_fast([
     (["experiment.num_envs=10000000"], "experiment.num_envs: the run needs about .* \\(in the command line's "
                                        "experiment.num_envs=10000000\\)"),
     (["experiment.swarm_sizes=[0,5]"], "experiment.swarm_sizes\\[0\\]: must be an integer >= 1 and <= 2000, got 0 "
@@ -391,7 +391,7 @@ def test_cuda_without_cuda_is_one_line_naming_device():
                                         "command line's \\+experiment.train_env.bogus=1\\)"),
     (["scenario=forest", "scenario.random_clearance=1000"], "scenario.random_clearance: 12 circles .* \\(in the "
                                                             "command line's scenario.random_clearance=1000\\)"),
-])
+]))
 def test_a_message_names_the_command_line_when_the_value_came_from_it(tmp_path, args, line):
     import re
 
