@@ -45,7 +45,6 @@ def same_rows(a: list[dict], b: list[dict]) -> bool:
 # ---------------------------------------------------------------------------- config
 @pytest.mark.parametrize("override, message", [
     (["policy=policyp_g"], "off-policy"),
-    (["experiment=mixed"], "one swarm size"),
     (["experiment.workers=2", "experiment.num_envs=4"], "workers must be 1"),
     (["compile=loss"], "eagerly"),
     (["population=0"], "population"),
@@ -196,6 +195,35 @@ def test_a_population_of_one_is_bitwise_the_solo_run(tmp_path):
     assert all(torch.equal(v, b["members"][0]["actor"][k]) for k, v in a["actor"].items())
     assert (tmp_path / "solo" / "episodes.csv").read_text() == (tmp_path / "pop" / "seed0" / "episodes.csv").read_text()
     assert same_rows(a["evaluations"], b["members"][0]["evaluations"])
+
+
+MIXED = ["+experiment.swarm_sizes=[2,3]", "experiment.num_envs=4", "experiment.max_frames=192"]
+
+
+def test_a_mixed_size_population_of_one_is_bitwise_the_solo_run(tmp_path):
+    """Several swarm sizes: a collector per size, single-UAV rows in the buffer, as a solo run."""
+    cfg = quick_config(1, "policy3_g", *MIXED)
+    solo = Training(cfg, tmp_path / "solo").run()
+    one = PopulationTraining(cfg, tmp_path / "pop").run()
+    assert (solo.frames, solo.episodes, solo.updates) == (one.frames, one.episodes, one.updates)
+    assert solo.episodes > 0 and solo.updates > 0
+    a = load_checkpoint(tmp_path / "solo" / "last.pt")
+    b = load_checkpoint(tmp_path / "pop" / "last.pt")
+    assert all(torch.equal(v, b["members"][0]["actor"][k]) for k, v in a["actor"].items())
+    assert (tmp_path / "solo" / "episodes.csv").read_text() == (tmp_path / "pop" / "seed0" / "episodes.csv").read_text()
+
+
+def test_a_mixed_size_population_resumes_bitwise(tmp_path):
+    whole = train(quick_config(2, "policy3_g", *MIXED), tmp_path / "whole")
+    assert whole.updates > 0
+    train(quick_config(2, "policy3_g", *MIXED[:-1], "experiment.max_frames=96"), tmp_path / "resumed")
+    train(quick_config(2, "policy3_g", *MIXED, "resume=true"), tmp_path / "resumed")
+    a = load_checkpoint(tmp_path / "whole" / "last.pt")
+    b = load_checkpoint(tmp_path / "resumed" / "last.pt")
+    assert [m["meta"]["trained_sizes"] for m in a["members"]] == [[2, 3], [2, 3]]
+    for ma, mb in zip(a["members"], b["members"]):
+        assert all(torch.equal(v, mb["actor"][k]) for k, v in ma["actor"].items())
+    assert not all(torch.equal(v, a["members"][1]["actor"][k]) for k, v in a["members"][0]["actor"].items())
 
 
 def test_a_population_trains_ships_and_resumes_bitwise(tmp_path):

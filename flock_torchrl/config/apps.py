@@ -128,7 +128,7 @@ class TrainConfig(RunOptions, WorldApp):
         return fields
 
     def _check_population(self, algo: LearnerConfig, experiment: ExperimentConfig) -> None:
-        """A population (``population > 1``) trains SAC or DDPG, one swarm size, in this process."""
+        """A population (``population > 1``) trains SAC or DDPG in this process."""
         count("population", self.population, 1, MAX_POPULATION)
         check_seed("seed", self.seed + self.population - 1)
         if self.population == 1:
@@ -136,9 +136,6 @@ class TrainConfig(RunOptions, WorldApp):
         if algo.name not in ("sac", "ddpg"):
             reject("population", f"a population trains an off-policy learner (sac, ddpg); {self.policy.id} trains "
                                  f"with {algo.name}: use population=1")
-        if experiment.swarm_sizes:
-            reject("population", "a population trains one swarm size; experiment.swarm_sizes (mixed sizes) needs "
-                                 "population=1")
         if experiment.workers != 1:
             reject("population", f"a population steps its worlds in this process; experiment.workers must be 1, "
                                  f"got {experiment.workers}")

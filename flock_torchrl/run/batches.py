@@ -39,18 +39,26 @@ class AgentwiseDone:
         return agentwise_done(batch, self.n_agents)
 
 
-def per_uav(batch: TensorDictBase) -> TensorDictBase:
-    """Swarm transitions ``[M]`` (agents ``[M, N]``) as single-UAV ones ``[M * N]`` (agents
-    ``[M * N, 1]``): what a replay buffer shared by several swarm sizes holds. The networks are
-    per UAV and the done flags per UAV (:func:`agentwise_done`), so the losses see the same
-    terms. UAV ``j`` of swarm transition ``m`` lands at row ``m * N + j``."""
-    flat = batch.select(*(k for k in TRANSITION_KEYS if "agents" in k), strict=False).reshape(-1)
-    m, n = flat.get("agents").batch_size
-    out = TensorDict({"agents": TensorDict({}, [m * n, 1]), "next": {"agents": TensorDict({}, [m * n, 1])}},
-                     batch_size=[m * n], device=flat.device)
+def per_uav(batch: TensorDictBase, lead: int = 0) -> TensorDictBase:
+    """Swarm transitions ``[*L, M]`` (agents ``[*L, M, N]``) as single-UAV ones ``[*L, M * N]``
+    (agents ``[*L, M * N, 1]``): what a replay buffer shared by several swarm sizes holds. The
+    networks are per UAV and the done flags per UAV (:func:`agentwise_done`), so the losses see
+    the same terms. UAV ``j`` of swarm transition ``m`` lands at row ``m * N + j``.
+
+    Args:
+        lead: how many leading dimensions ``L`` to keep (a population's members: 1); the
+            others are flattened into ``M``.
+    """
+    picked = batch.select(*(k for k in TRANSITION_KEYS if "agents" in k), strict=False)
+    lead_shape = list(picked.batch_size[:lead])
+    flat = picked.reshape(*lead_shape, -1)
+    *_, m, n = flat.get("agents").batch_size
+    out = TensorDict({"agents": TensorDict({}, [*lead_shape, m * n, 1]),
+                      "next": {"agents": TensorDict({}, [*lead_shape, m * n, 1])}},
+                     batch_size=[*lead_shape, m * n], device=flat.device)
     for key in flat.keys(True, True):
         value = flat.get(key)
-        out.set(key, value.reshape(m * n, 1, *value.shape[2:]))
+        out.set(key, value.reshape(*lead_shape, m * n, 1, *value.shape[lead + 2:]))
     return out
 
 

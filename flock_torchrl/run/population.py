@@ -1,13 +1,16 @@
 """Training a population: ``population=K`` trains seeds ``seed .. seed + K - 1`` in one process.
 
-The loop is the solo run's (:mod:`.trainer`): one collector, one replay buffer, one learner,
-the same schedule, checkpoints, signals and resume. What changes is what each piece holds:
+The loop is the solo run's (:mod:`.trainer`): one collector (one per swarm size when sizes are
+mixed), one replay buffer, one learner, the same schedule, checkpoints, signals and resume. What
+changes is what each piece holds:
 
 * the env is a :class:`~flock_torchrl.world.population.PopulationEnv`: ``K * B`` worlds,
-  member-major, each member's spawns from its own generator (seeded as a solo run's env);
+  member-major, each member's spawns from its own generator (seeded as a solo run's env); with
+  mixed sizes, one such env per size;
 * the learner is a :class:`~flock_torchrl.policies.population.PopulationLearner`: the members'
   parameters stacked, TorchRL's loss called under ``torch.vmap``;
-* the replay buffer's items are population rows ``[K]`` (one swarm transition per member),
+* the replay buffer's items are population rows ``[K]`` (one swarm transition per member, or
+  one UAV's transition when the sizes are mixed),
   sampled per member (:class:`~flock_torchrl.policies.population.MemberSampler`);
 * counters are per member: ``frames`` is each member's (all collect alike), episodes are
   counted per member, and the budget ``max_episodes`` is spent when every member has spent it.
@@ -35,7 +38,7 @@ from ..config import TrainConfig
 from ..policies.population import MemberSampler, PopulationLearner
 from ..world.population import PopulationEnv
 from .run_folder import EpisodeLog
-from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, AgentwiseDone, episode_rows
+from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, AgentwiseDone, episode_rows, per_uav
 from .setup import checkpoint_meta
 from .signals import start_resource_tracker
 from .parts import evaluation_row, replay_buffer, restore_buffer
@@ -66,23 +69,31 @@ class PopulationTraining(Training):
         start_resource_tracker()
         torch.manual_seed(cfg.seed)
         device = torch.device(cfg.device)
-        self.mixed = False
-        env = PopulationEnv(cfg.train_scenario, self.k, exp.num_envs, [s * 1000 for s in self.seeds],
-                            device=device, compile_step=cfg.compile_step)
-        self.envs, self.env = [env], env
+        # Mixed sizes: one PopulationEnv per size, the worlds split evenly; member k's worlds of
+        # size i draw from a generator seeded as its solo run's (1000 seed_k + i).
+        self.mixed = bool(exp.swarm_sizes)
+        scenarios = cfg.train_scenarios if self.mixed else [cfg.train_scenario]
+        self.envs = [PopulationEnv(scenario, self.k, exp.num_envs // len(scenarios), [s * 1000 + i for s in self.seeds],
+                                   device=device, compile_step=cfg.compile_step)
+                     for i, scenario in enumerate(scenarios)]
+        self.env = env = self.envs[0]
         self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds)
-        self.buffer = replay_buffer(cfg, cfg.scenario.n_uavs, device, sampler=MemberSampler(self.k))
+        self.buffer = replay_buffer(cfg, 1 if self.mixed else cfg.scenario.n_uavs, device,
+                                    sampler=MemberSampler(self.k))
         if payload is not None:
             learner.load_state_dict(payload["learner"])
             restore_buffer(self.buffer, payload, self.run_dir)
-            env.set_state(payload["env_state"])
+            states = payload["env_state"]
+            for one, state in zip(self.envs, states if self.mixed else [states]):
+                one.set_state(state)
         init_random = max(0, exp.init_random_frames - self.counters["frames"])
-        self.collector = Collector(env, learner.collector_policy, track_traj_ids=False,
-                                   frames_per_batch=env.num_envs * exp.steps_per_batch, total_frames=-1,
-                                   device=device, init_random_frames=init_random * self.k or None,
-                                   exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
-                                   postproc=AgentwiseDone(env.n_agents))
-        self.collectors = [self.collector]
+        self.collectors = [Collector(one, learner.collector_policy, track_traj_ids=False,
+                                     frames_per_batch=one.num_envs * exp.steps_per_batch, total_frames=-1,
+                                     device=device, init_random_frames=init_random * self.k or None,
+                                     exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
+                                     postproc=AgentwiseDone(one.n_agents))
+                           for one in self.envs]
+        self.collector = self.collectors[0]
         if payload is not None:
             torch.set_rng_state(payload["rng"]["torch"])
         self.meta = {**checkpoint_meta(cfg, env), "population": self.k, "seeds": list(self.seeds)}
@@ -103,30 +114,33 @@ class PopulationTraining(Training):
 
     # ---------------------------------------------------------------- one batch
     def _consume(self, batches: Sequence[TensorDictBase]) -> dict[str, torch.Tensor]:
-        (batch,) = batches
-        self.counters["frames"] += batch.numel() // self.k
+        self.counters["frames"] += sum(batch.numel() for batch in batches) // self.k
         self.counters["iterations"] += 1
         with self.split.timer("members"):
-            self._episode_rows(batch)
-        self.learner.on_frames(batch.numel() // self.k)
-        stats, n_updates = self._learn([batch])
+            for env, batch in zip(self.envs, batches):
+                self._episode_rows(env, batch)
+        self.learner.on_frames(sum(batch.numel() for batch in batches) // self.k)
+        stats, n_updates = self._learn(batches)
         self.counters["updates"] += n_updates
         self._freeze_finished()
         return stats
 
     def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
-        """Population rows ``[B * T, K]``: member k's swarm transitions in column k."""
+        """Population rows ``[R, K]``: member k's transitions in column k (swarm transitions, or
+        single-UAV ones when the sizes are mixed)."""
+        if self.mixed:
+            return per_uav(batch.reshape(self.k, -1), lead=1).transpose(0, 1).contiguous()
         rows = batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1)
         return rows.transpose(0, 1).contiguous()
 
-    def _episode_rows(self, batch: TensorDictBase) -> None:
-        """Each member's finished episodes as rows of its own episode log (one tensor per column,
-        the member of each episode from its world's index)."""
+    def _episode_rows(self, env: PopulationEnv, batch: TensorDictBase) -> None:
+        """Each member's finished episodes in ``batch`` (of ``env``) as rows of its own episode
+        log (one tensor per column, the member of each episode from its world's index)."""
         done = batch.get(("next", "done")).squeeze(-1)               # [K * B, T]
         if bool(done.any()):
             world, _ = done.nonzero(as_tuple=True)                   # world-major, as the solo log's rows
             episodes = batch.get(("next", "episode"))[done]
-            member = self.env.member_of(world)
+            member = env.member_of(world)
             for k in member.unique().tolist():                       # members with finished episodes
                 mine = episodes[member == k]
                 first = self.member_episodes[k]
