@@ -250,3 +250,29 @@ def test_app_config_composes_an_apps_config_from_names_and_values_and_checks_it(
             with pytest.raises(ConfigError) as info:
                 app_config(app, **{key: bad})
             assert info.value.key == key, (app, key)
+
+
+def test_each_experiment_file_lists_the_learner_settings_it_changes():
+    """Issue 28 item 5: an experiment file's header names, per learner, exactly the settings its
+    tuning file changes from conf/algo/<algo>.yaml (Table I), with the values a run takes."""
+    import re
+    from pathlib import Path
+
+    from flock_torchrl.config import CONF_DIR
+
+    policy_of = {"sac": "policy3_g", "ddpg": "policyd_g", "ppo": "policyp_g"}
+    assert set(policy_of) == set(available("algo"))
+    table_one = {a: OmegaConf.to_container(compose("train", [f"policy={p}", "experiment=paper"]).algo, resolve=True)
+                 for a, p in policy_of.items()}
+    for experiment in available("experiment"):
+        header = (Path(CONF_DIR) / "experiment" / f"{experiment}.yaml").read_text()
+        for algo, policy in policy_of.items():
+            line = re.search(rf"^#   {algo}: (.*)$", header, re.M)
+            assert line, f"conf/experiment/{experiment}.yaml does not list {algo}'s settings"
+            listed = {} if line.group(1) == "none" else dict(kv.split("=") for kv in line.group(1).split())
+            runs = OmegaConf.to_container(compose("train", [f"policy={policy}", f"experiment={experiment}"]).algo,
+                                          resolve=True)
+            changed = {k: v for k, v in runs.items() if table_one[algo].get(k) != v}
+            assert set(listed) == set(changed), f"{experiment}/{algo}: lists {sorted(listed)}, changes {sorted(changed)}"
+            for key, value in listed.items():
+                assert float(value) == pytest.approx(float(changed[key])), f"{experiment}/{algo}: {key}"
