@@ -157,10 +157,8 @@ publish: $(STAMP)
 			$(PYTHON) scripts/reproduce.py table=3 recipe=paper episodes=$(EPISODES) reading=$$r \
 				hydra.run.dir=results/$$r || exit 1; \
 		fi; \
-		mixed=checkpoints/$$r/mixed/policy3_g/seed0.pt; \
-		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r \
-			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
 	done
+	$(MAKE) --no-print-directory publish-scaling SCALING_READINGS="$(PUBLISH_READINGS)"
 	$(MAKE) --no-print-directory publish-claims
 	$(MAKE) --no-print-directory docs
 
@@ -192,11 +190,20 @@ publish-paper-recipe: $(STAMP)
 	$(MAKE) --no-print-directory publish-claims
 	$(MAKE) --no-print-directory docs
 
+# The swarm-size tables (docs/specification.md section 7; issue 32): Policy3-G trained at 5 (its
+# lowest shipped seed), the mixed-size Policy3-G (seed 0), every shipped seed of Policy3-G-crowd
+# (mixed and mixed_safe collections) and the rule-based Policy-MA and Policy-OP, at N = 5-100, on
+# the training scenario (results/<r>/scaling.*) and the forest (results/<r>/scaling_forest.*).
+SCALING_READINGS ?= literal paper_fit
+SCALING_EPISODES ?= 500
 publish-scaling: $(STAMP)
-	for r in literal paper_fit; do \
-		mixed=checkpoints/$$r/mixed/policy3_g/seed0.pt; \
-		$(PYTHON) scripts/scaling.py reading=$$r hydra.run.dir=results/$$r \
-			$$(test -f $$mixed && echo "others=[$$mixed]") || exit 1; \
+	for r in $(SCALING_READINGS); do \
+		others=$$(ls checkpoints/$$r/mixed/policy3_g/seed0.pt checkpoints/$$r/mixed/policy3_g_crowd/seed*.pt \
+			checkpoints/$$r/mixed_safe/policy3_g_crowd/seed*.pt 2>/dev/null | paste -sd, -); \
+		for s in train forest; do \
+			$(PYTHON) scripts/scaling.py reading=$$r scenario=$$s episodes=$(SCALING_EPISODES) \
+				hydra.run.dir=results/$$r "others=[$${others}$${others:+,}policy_ma,policy_op]" || exit 1; \
+		done; \
 	done
 	$(MAKE) --no-print-directory docs
 
