@@ -35,6 +35,7 @@ def benchmark(*args: str, cwd, module: bool = True, **env: str) -> subprocess.Co
                           text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_a_bad_benchmark_value_is_one_line_before_any_folder(tmp_path):
     # Run as a file, with nothing on PYTHONPATH: the script finds the repository's root itself,
     # and its callback checks the config before Hydra creates outputs/benchmark.

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import ROOT, first_fast, run_script, script_env
+from helpers import ROOT, run_script, script_env
 
 from flock_torchrl import CheckpointError
 from flock_torchrl.policies.checkpoint import load_checkpoint
@@ -146,11 +146,12 @@ def _malicious(path: Path) -> None:
         pickle.dump({"payload": Payload()}, handle)
 
 
-@pytest.mark.parametrize("make, words", first_fast([
+@pytest.mark.parametrize("make, words", [
     (lambda p: p.write_bytes(b""), "is empty"),
     (lambda p: p.write_text("my notes\n"), "not a readable checkpoint"),
     (_malicious, "holds Python objects a checkpoint never contains"),
-]))
+])
+@pytest.mark.slow
 def test_a_bad_checkpoint_is_one_line_naming_it_and_never_suggests_unsafe_loading(tmp_path, make, words):
     bad = tmp_path / "bad.pt"
     make(bad)

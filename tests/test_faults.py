@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import first_fast, script_env
+from helpers import script_env
 
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
@@ -60,6 +60,7 @@ def test_a_copied_folder_continues_the_copy_and_a_moved_one_where_it_stands(tmp_
     assert digest(run / "last.pt") == original
 
 
+@pytest.mark.slow
 def test_an_old_resume_yaml_naming_another_folder_is_refused(tmp_path):
     # resume.yaml files written before run folders could move name their folder by its path.
     folder = tmp_path / "copy"
@@ -84,7 +85,7 @@ def limit_memory(gib: float):
     return limit
 
 
-@pytest.mark.parametrize("app, args, gib, key", first_fast([
+@pytest.mark.parametrize("app, args, gib, key", [
     ("evaluate.py", ["policy=policy_ma", "episodes=10000000"], None, "episodes: evaluating 10000000 episodes"),
     ("evaluate.py", ["policy=policy_ma", "episodes=1000000"], 8, "episodes: evaluating 1000000 episodes"),
     ("train.py", [*TINY, "experiment.eval_episodes=1000000"], None, "experiment.eval_episodes: the run needs"),
@@ -94,7 +95,8 @@ def limit_memory(gib: float):
     ("evaluate.py", ["policy=policy_ma", "scenario=forest", "scenario.random_circles=1000", "episodes=2",
                      "scenario.random_region=[-1000000,-1000000,1000000,1000000]"], None,
      "scenario.random_region: checking that the swarm and the forest can always be placed needs about"),
-]))
+])
+@pytest.mark.slow
 def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_path, app, args, gib, key):
     proc = script(app, *args, f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120,
                   preexec=limit_memory(gib) if gib else None)
@@ -115,6 +117,7 @@ def test_check_memory_names_the_costliest_key_and_the_bound():
         check_memory({"a": 2**30, "b": 2 * 2**30}, "x", Usable(int(2.5 * 2**30), "a test bound"))
 
 
+@pytest.mark.slow
 def test_usable_memory_sees_the_processs_own_limit():
     code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30)); "
             "from flock_torchrl.world.memory import usable_memory; u = usable_memory(); print(u.bytes, u.what)")
@@ -123,7 +126,8 @@ def test_usable_memory_sees_the_processs_own_limit():
     assert what.startswith("its ulimit -v of 3.0 GiB") and 0 < left < 3 * 2**30, out
 
 
-@pytest.mark.parametrize("scenario, n, worlds", first_fast([("s1", 5, 4000), ("s2", 100, 400)]))
+@pytest.mark.parametrize("scenario, n, worlds", [("s1", 5, 4000), ("s2", 100, 400)])
+@pytest.mark.slow
 def test_the_world_estimate_bounds_the_measured_peak(scenario, n, worlds):
     # Peak resident memory of stepping `worlds` worlds, in a fresh process, against world_bytes.
     code = f"""
@@ -239,7 +243,8 @@ def test_a_file_size_limit_at_checkpoint_time_is_one_line_naming_the_checkpoint(
     assert not (run / "last.pt").exists() and not list(run.glob(".*.tmp"))
 
 
-@pytest.mark.parametrize("how", first_fast(["-cd", "searchpath"]))
+@pytest.mark.parametrize("how", ["-cd", "searchpath"])
+@pytest.mark.slow
 def test_a_broken_yaml_in_the_search_path_is_one_line_naming_the_file(tmp_path, how):
     bad = tmp_path / "mine" / "scenario" / "bad.yaml"
     bad.parent.mkdir(parents=True)
@@ -252,10 +257,11 @@ def test_a_broken_yaml_in_the_search_path_is_one_line_naming_the_file(tmp_path, 
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("args, key", first_fast([
+@pytest.mark.parametrize("args, key", [
     (["hydra.run.dir={blocker}/out"], "hydra.run.dir: {blocker}/out cannot be made: {blocker} is a file"),
     (["-m", "hydra.sweep.dir={blocker}/sweep"], "hydra.sweep.dir: {blocker}/sweep/"),
-]))
+])
+@pytest.mark.slow
 def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, args, key):
     blocker = tmp_path / "a_file"
     blocker.write_text("")
@@ -327,7 +333,8 @@ def test_a_crafted_digest_valid_checkpoint_is_refused_naming_the_field(tmp_path,
     assert "pass reading=weird" not in message
 
 
-@pytest.mark.parametrize("how", first_fast(["kind", "nan"]))
+@pytest.mark.parametrize("how", ["kind", "nan"])
+@pytest.mark.slow
 def test_evaluate_refuses_a_crafted_checkpoint_in_one_line(tmp_path, how):
     bad = crafted(tmp_path / "bad.pt", how)
     proc = script("evaluate.py", f"checkpoint={bad}", "policy=policy3_g", "episodes=2",
@@ -382,7 +389,7 @@ def test_cuda_without_cuda_is_one_line_naming_device():
 
 
 # ---------------------------------------------------------------------------- 9: where a value came from
-@pytest.mark.parametrize("args, line", first_fast([
+@pytest.mark.parametrize("args, line", [
     (["experiment.num_envs=10000000"], "experiment.num_envs: the run needs about .* \\(in the command line's "
                                        "experiment.num_envs=10000000\\)"),
     (["experiment.swarm_sizes=[0,5]"], "experiment.swarm_sizes\\[0\\]: must be an integer >= 1 and <= 2000, got 0 "
@@ -391,7 +398,8 @@ def test_cuda_without_cuda_is_one_line_naming_device():
                                         "command line's \\+experiment.train_env.bogus=1\\)"),
     (["scenario=forest", "scenario.random_clearance=1000"], "scenario.random_clearance: 12 circles .* \\(in the "
                                                             "command line's scenario.random_clearance=1000\\)"),
-]))
+])
+@pytest.mark.slow
 def test_a_message_names_the_command_line_when_the_value_came_from_it(tmp_path, args, line):
     import re
 
@@ -402,6 +410,7 @@ def test_a_message_names_the_command_line_when_the_value_came_from_it(tmp_path, 
     assert "tiny.yaml" not in proc.stderr and "forest.yaml" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_a_message_names_the_file_that_set_the_value(tmp_path):
     mine = tmp_path / "mine" / "experiment" / "broad.yaml"
     mine.parent.mkdir(parents=True)

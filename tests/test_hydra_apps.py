@@ -68,6 +68,7 @@ def test_hydra_searchpath_adds_a_scenario(tmp_path, door):
     assert "Policy-MA on corridor" in proc.stdout
 
 
+@pytest.mark.slow
 def test_a_bad_value_in_a_users_file_names_the_file_and_the_key(tmp_path):
     conf = user_folder(tmp_path, CORRIDOR + "n_uavs: 0\n", "crowd")
     proc = run_script("evaluate.py", "--config-dir", str(conf), "scenario=crowd", "episodes=2", cwd=tmp_path,
@@ -143,6 +144,7 @@ def test_tensorboard_logs_the_hyperparameters(tmp_path):
     assert events and sum(p.stat().st_size for p in events) > 0
 
 
+@pytest.mark.slow
 def test_a_logger_that_is_not_installed_is_a_config_error_before_any_folder(tmp_path):
     code = textwrap.dedent("""
         import importlib.util, sys

@@ -205,6 +205,5 @@ def test_only_compose_touches_hydra_and_importing_the_package_registers_and_read
             "assert c.EVAL_SEED == 2024 and OmegaConf.has_resolver('pi')")
     # The command-line apps register when cli is imported: a launcher's worker unpickles its task.
     apps = "import flock_torchrl.cli; from omegaconf import OmegaConf; assert OmegaConf.has_resolver('flock.run_name')"
-    for snippet in (bare, apps):
-        proc = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, cwd=ROOT)
-        assert proc.returncode == 0, proc.stderr[-2000:]
+    proc = subprocess.run([sys.executable, "-c", f"{bare}; {apps}"], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]

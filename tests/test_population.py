@@ -213,6 +213,7 @@ def test_a_mixed_size_population_of_one_is_bitwise_the_solo_run(tmp_path):
     assert (tmp_path / "solo" / "episodes.csv").read_text() == (tmp_path / "pop" / "seed0" / "episodes.csv").read_text()
 
 
+@pytest.mark.slow
 def test_a_mixed_size_population_resumes_bitwise(tmp_path):
     whole = train(quick_config(2, "policy3_g", *MIXED), tmp_path / "whole")
     assert whole.updates > 0

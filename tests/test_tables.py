@@ -257,6 +257,7 @@ def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
     assert "| Policy-MA | — | 3 | 3.00 | " in (tmp_path / "scaling.md").read_text()
 
 
+@pytest.mark.slow
 def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_path):
     """Issue 32 item 4: ``others`` takes the rule-based baselines (rows named as in the paper, no
     training seed), and ``scenario="forest"`` flies every row in the forest, into scaling_forest.*
