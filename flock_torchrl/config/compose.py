@@ -68,7 +68,8 @@ HYDRA_ROOTS: dict[str, type] = {**APP_SCHEMAS, "train": _TrainRoot, "evaluate": 
 def register() -> None:
     """The resolvers, and every schema in Hydra's ConfigStore as a root config (``<name>_schema``):
     the YAMLs name them in their defaults lists (a group's file as ``/scenario_schema@_here_``), so
-    they type the composition without appearing among a group's choices. Safe to call again."""
+    they type the composition without appearing among a group's choices. Safe to call again: what is
+stored already stays."""
     for name, resolver in RESOLVERS.items():
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, resolver)
@@ -77,7 +78,8 @@ def register() -> None:
                                         "experiment": ExperimentConfig, "logger": LoggerConfig,
                                         **ALGO_SCHEMAS, **HYDRA_ROOTS}
     for name, schema in schemas.items():
-        cs.store(name=f"{name}_schema", node=schema)
+        if f"{name}_schema.yaml" not in cs.repo:  # storing converts the dataclass: a quarter of a compose
+            cs.store(name=f"{name}_schema", node=schema)
 
 
 def compose(config_name: str, overrides: Sequence[str] = (), return_hydra_config: bool = False) -> DictConfig:
