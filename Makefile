@@ -196,11 +196,12 @@ publish-paper-recipe: $(STAMP)
 # the training scenario (results/<r>/scaling.*) and the forest (results/<r>/scaling_forest.*).
 SCALING_READINGS ?= literal paper_fit
 SCALING_EPISODES ?= 500
+SCALING_SCENARIOS ?= train forest
 publish-scaling: $(STAMP)
 	for r in $(SCALING_READINGS); do \
 		others=$$(ls checkpoints/$$r/mixed/policy3_g/seed0.pt checkpoints/$$r/mixed/policy3_g_crowd/seed*.pt \
 			checkpoints/$$r/mixed_safe/policy3_g_crowd/seed*.pt 2>/dev/null | paste -sd, -); \
-		for s in train forest; do \
+		for s in $(SCALING_SCENARIOS); do \
 			$(PYTHON) scripts/scaling.py reading=$$r scenario=$$s episodes=$(SCALING_EPISODES) \
 				hydra.run.dir=results/$$r "others=[$${others}$${others:+,}policy_ma,policy_op]" || exit 1; \
 		done; \
