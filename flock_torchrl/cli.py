@@ -22,7 +22,6 @@ cannot (files, checkpoints, the swarm's spawn, memory) and a ``run``.
 from __future__ import annotations
 
 import dataclasses
-import os
 import signal
 import sys
 from dataclasses import dataclass
@@ -328,8 +327,6 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
 def _jobs_in_workers(config: DictConfig) -> bool:
     """The sweep's launcher runs its jobs in local worker processes (joblib's)."""
     return "joblib" in str(config.hydra.launcher.get("_target_", "")).lower()
-
-
 
 
 def main(app: str, noted: list[int] | None = None) -> Any:

@@ -69,7 +69,7 @@ def register() -> None:
     """The resolvers, and every schema in Hydra's ConfigStore as a root config (``<name>_schema``):
     the YAMLs name them in their defaults lists (a group's file as ``/scenario_schema@_here_``), so
     they type the composition without appearing among a group's choices. Safe to call again: what is
-stored already stays."""
+    stored already stays."""
     for name, resolver in RESOLVERS.items():
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, resolver)

@@ -114,12 +114,13 @@ class PopulationTraining(Training):
 
     # ---------------------------------------------------------------- one batch
     def _consume(self, batches: Sequence[TensorDictBase]) -> dict[str, torch.Tensor]:
-        self.counters["frames"] += sum(batch.numel() for batch in batches) // self.k
+        frames = sum(batch.numel() for batch in batches) // self.k  # each member's
+        self.counters["frames"] += frames
         self.counters["iterations"] += 1
         with self.split.timer("members"):
-            for env, batch in zip(self.envs, batches):
+            for env, batch in zip(self.envs, batches):  # one per swarm size
                 self._episode_rows(env, batch)
-        self.learner.on_frames(sum(batch.numel() for batch in batches) // self.k)
+        self.learner.on_frames(frames)
         stats, n_updates = self._learn(batches)
         self.counters["updates"] += n_updates
         self._freeze_finished()

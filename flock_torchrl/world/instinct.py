@@ -120,7 +120,6 @@ def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.
     the command not yet clipped."""
     triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
                                               safe_distance=safe_distance, tangential=tangential, shortest=shortest)
-    if mode != "paper":
-        uav = hold_in_crowd(uav, mode, beams=beams, heading=heading, gain=gain, r0=r0,
-                            safe_distance=safe_distance, shortest=shortest)
+    uav = hold_in_crowd(uav, mode, beams=beams, heading=heading, gain=gain, r0=r0, safe_distance=safe_distance,
+                        shortest=shortest)
     return triggered, uav + obstacle
