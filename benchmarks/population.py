@@ -33,6 +33,44 @@ from flock_torchrl.run.trainer import make_train_config
 LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
 
 
+def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
+    """``(MFLOP of one member-update, GFLOP/s of this core's matmul at the update's shape)``.
+
+    The FLOPs are the matrix products of one solo update of Policy3-G under ``recipe`` (what
+    ``torch.profiler`` counts with ``with_flops``: the networks' linear layers, forward and
+    backward); the rate is a ``[members, rows, 128] x [128, 128]`` batched product, ``rows`` the
+    UAV rows of one minibatch, the hidden layers' shape, timed here. Their ratio bounds what any
+    batching of the members' updates can reach on this core."""
+    import time
+
+    from torch.profiler import profile
+
+    from flock_torchrl import FlockingEnv
+    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+
+    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, ["progress=false", "logger=none",
+                                                                          "reading=paper_fit"]))
+    env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0)
+    seen = agentwise_done(env.rollout(200, break_when_any_done=False), env.n_agents)
+    seen = seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0])
+    batch = seen[torch.randint(0, seen.shape[0], (cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 1)
+    learner.update(batch)
+    with profile(with_flops=True) as prof:
+        learner.update(batch)
+    flop = sum(e.flops for e in prof.key_averages() if e.flops)
+    rows = cfg.algo.batch_size * env.n_agents
+    a, b = torch.randn(members, rows, 128), torch.randn(members, 128, 128)
+    for _ in range(5):
+        torch.bmm(a, b)
+    start, repeats = time.perf_counter(), 100
+    for _ in range(repeats):
+        torch.bmm(a, b)
+    rate = 2 * members * rows * 128 * 128 * repeats / (time.perf_counter() - start)
+    return flop / 1e6, rate / 1e9
+
+
 def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str = "cpu") -> dict:
     overrides = [f"population={members}", f"experiment.max_frames={frames}", "experiment.max_episodes=0",
                  "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "experiment.checkpoint_every_frames=0",
@@ -63,6 +101,13 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in recipes.split(","):
             n = frames if recipe == "paper" else max(frames, 4096)
+            mflop, peak = update_arithmetic(recipe, members)
+            line = (f"population {recipe:5s} cpu  arithmetic: {mflop:.0f} MFLOP of matmuls per member-update; this "
+                    f"core's batched matmul at the update's shape runs {peak:.1f} GFLOP/s, so no batching of the "
+                    f"updates passes {1000 * peak / mflop:.0f} member-updates/s of update time on one core")
+            lines.append(line)
+            if print_each:
+                print(line, flush=True)
             for device in devices:
                 plan = [(1, "false")] + ([(1, "true")] if recipe == "paper" and device == "cpu" else []) \
                     + [(members, "false")]
@@ -71,13 +116,15 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                     r = row_in_child(recipe, k, n, compile, Path(tmp), device)
                     base = base or r["member_updates_per_s"]
                     solo_mb = solo_mb or r["peak_mb"]
+                    in_update = r["member_updates_per_s"] / max(r["split"].get("update", 0.0), 1e-9)
                     split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
                     memory = (f"peak {r['peak_mb']:.0f} MB, {r['peak_mb'] / k:.0f} MB per member, each member past "
                               f"the first {(r['peak_mb'] - solo_mb) / (k - 1):.0f} MB" if k > 1
                               else f"peak {r['peak_mb']:.0f} MB")
                     line = (f"population {recipe:5s} {device:4s} members {r['members']:2d} compile={r['compile']:5s}: "
                             f"{r['member_updates_per_s']:8.1f} member-updates/s ({r['member_updates_per_s'] / base:.2f}x "
-                            f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; {memory})")
+                            f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; the update alone "
+                            f"{in_update:.0f} member-updates/s, {in_update * mflop / 1000:.1f} GFLOP/s; {memory})")
                     lines.append(line)
                     if print_each:
                         print(line, flush=True)
