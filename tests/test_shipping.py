@@ -53,3 +53,32 @@ def test_exporting_the_same_run_twice_gives_the_same_bytes(tmp_path):
     run = tiny_run(tmp_path / "runs", "tiny", 0, **{"experiment.max_frames": 16})
     a, b = export_policy(run.checkpoint, tmp_path / "a.pt"), export_policy(run.checkpoint, tmp_path / "sub" / "b.pt")
     assert a.read_bytes() == b.read_bytes()
+
+
+
+def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_three(tmp_path):
+    """``n_cam`` is a policy scenario field: Policy3-G-crowd8's checkpoint records its eight
+    slots and every evaluation world takes them (observation 2 + 3 x 2 + 8 x 3 = 32); a shipped
+    checkpoint saved before the field existed (its ``policy_scenario`` lacks ``n_cam``) flies
+    with the scenario's three, what it trained with."""
+    from flock_torchrl import evaluate
+    from flock_torchrl.config import shipped_checkpoints_dir
+    from flock_torchrl.policies.checkpoint import export_policy
+    from flock_torchrl.policies.registry import checkpoint_handle
+    from flock_torchrl.run.rollout import policy_env
+
+    cfg = make_train_config("policy3_g_crowd8", "tiny", ["scenario.max_steps=30", "progress=false", "seed=0",
+                                                         "experiment.eval_every_frames=0", "experiment.eval_episodes=1",
+                                                         "experiment.max_frames=16"])
+    run = train(cfg, tmp_path / "runs" / "crowd8")
+    path = export_policy(run.checkpoint, tmp_path / "crowd8.pt")
+    meta = load_checkpoint(path, kind="policy")["meta"]
+    assert meta["policy_scenario"]["n_cam"] == 8 and meta["scenario"]["n_cam"] == 8
+    handle = checkpoint_handle(path)
+    env = policy_env(handle, "forest", "paper_fit", 2, 0, "cpu", {"n_uavs": 12})
+    assert env.cfg.n_cam == 8 and env.reset()["agents", "observation"].shape[-1] == 32
+    assert evaluate(path, "forest", n_episodes=2, env_overrides={"n_uavs": 12}, max_steps=5).episodes["success"].numel() == 2
+    older = checkpoint_handle(shipped_checkpoints_dir() / "paper_fit" / "policy3_g" / "seed0.pt")
+    assert "n_cam" not in older.scenario
+    env = policy_env(older, "forest", "paper_fit", 2, 0, "cpu", {"n_uavs": 12})
+    assert env.cfg.n_cam == 3 and env.reset()["agents", "observation"].shape[-1] == 17

@@ -217,8 +217,11 @@ def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
 
 SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 # The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
-# interface): a checkpoint records them, and evaluation applies them in any scenario.
-POLICY_SCENARIO_FIELDS = ("fov", "instinct", "tangential", "instinct_mode", "collision_reward_source", "action_mode")
+# interface): a checkpoint records them, and evaluation applies them in any scenario. A
+# checkpoint written before a field was added here flies with the scenario's value of it,
+# which is what it trained with (``n_cam``: 3 for every policy before Policy3-G-crowd8).
+POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
+                          "action_mode")
 READINGS = ("literal", "paper_fit")
 # How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
 # ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
