@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from flock_torchrl.world.reward import (
-    collision_reward, flocking_reward, goal_reward, smoothness_reward, total_reward,
+    cohesion_range, collision_reward, flocking_reward, goal_reward, smoothness_reward, total_reward,
 )
 
 PI = math.pi
@@ -64,6 +64,16 @@ def test_flocking_reward():
     assert out == pytest.approx([0.1, 0.05, 0.0, 0.0, 0.075])
 
 
+def test_cohesion_range_by_swarm_size():
+    # paper: 3 m at every size; sqrt_n: 3 sqrt(N / 5): 3 m at 5, 6 m at 20, 3 sqrt(10) = 9.486833 m at 50.
+    assert [cohesion_range("paper", n) for n in (5, 20, 50)] == [3.0, 3.0, 3.0]
+    assert [cohesion_range("sqrt_n", n) for n in (5, 20, 50)] == pytest.approx([3.0, 6.0, 9.486833])
+    # r_f at d_c = 3 m, heading on the mean: 0.05 + 0.05 (1 - 3/6) = 0.075 with a 6 m range (paper: 0.05).
+    assert flocking_reward(t([0.0]), t([3.0]), reach=6.0).item() == pytest.approx(0.075)
+    with pytest.raises(ValueError, match="cohesion_range"):
+        cohesion_range("linear", 5)
+
+
 def test_smoothness_reward():
     a = t([[0.5, -0.5], [0.2, 0.3], [1.0, -1.0]])
     prev = t([[0.0, 0.0], [0.2, 0.3], [-1.0, 1.0]])
@@ -108,6 +118,18 @@ def test_env_reward_two_steps_by_hand(make_env, place, step_with):
     r_f = 0.05 + 0.05 * (1 - math.hypot(0.01, 2.0) / 3)
     r2 = out["agents", "reward"][0, :, 0].tolist()
     assert r2 == pytest.approx([0.044216 - 0.01 + r_f, r_g1 + r_f], abs=3e-6)
+
+
+def test_env_cohesion_range_sqrt_n_by_hand(make_env, place, step_with):
+    # The two-UAV placement of the test above, now with 20 UAVs' range in a 2-UAV world:
+    # sqrt_n at N = 2 gives 3 sqrt(2/5) = 1.897367 m. Step 1: d_c = 2 for both, so
+    # r_f = 0.05 + 0.05 (1 - 2 / 1.897367) = 0.05 - 0.002705 = 0.047295, against 0.066667 under paper.
+    rewards = {}
+    for mode in ("paper", "sqrt_n"):
+        env = place(make_env("s1", n_uavs=2, cohesion_range=mode), [[[10.0, 10.0], [10.0, 14.0]]], [[0.0, 0.0]],
+                    [[50.0, 10.0]])
+        rewards[mode] = step_with(env, [[[0.0, 0.0], [0.0, 0.0]]])["agents", "reward"][0, :, 0]
+    assert (rewards["sqrt_n"] - rewards["paper"]).tolist() == pytest.approx([0.047295 - 0.066667] * 2, abs=2e-6)
 
 
 def test_env_first_step_smoothness_is_zero_and_reset_forgets_the_last_action(make_env, place, step_with):

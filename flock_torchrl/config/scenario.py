@@ -60,6 +60,8 @@ class ScenarioConfig(Schema):
     action_mode: str = MISSING
     # --- reward (section 4): scan | min_uav_scan (Policy4-G)
     collision_reward_source: str = MISSING
+    # --- r_f's range: paper (d_c / 3 m) | sqrt_n (d_c / (3 sqrt(N / 5)) m, beyond the paper)
+    cohesion_range: str = MISSING
     # --- starts, goals, obstacles (sections 1, 6, 9)
     area_center: List[float] = MISSING
     area_size: float = MISSING
@@ -150,6 +152,7 @@ class ScenarioConfig(Schema):
         choice(k("collision_reward_source"), self.collision_reward_source, ("scan", "min_uav_scan"))
         choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
         choice(k("instinct_mode"), self.instinct_mode, INSTINCT_MODES)
+        choice(k("cohesion_range"), self.cohesion_range, COHESION_RANGES)
         if len(self.area_center) != 2 or not all(is_number(v) for v in self.area_center):
             reject(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
         lists: dict[str, list[list[float]]] = {}
@@ -221,12 +224,17 @@ SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 # checkpoint written before a field was added here flies with the scenario's value of it,
 # which is what it trained with (``n_cam``: 3 for every policy before Policy3-G-crowd8).
 POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
-                          "action_mode")
+                          "cohesion_range", "action_mode")
 READINGS = ("literal", "paper_fit")
 # How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
 # ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
 # that hold in a crowd (docs/specification.md section 3; docs/scaling_diagnosis.md measured them).
 INSTINCT_MODES = ("paper", "no_push_in", "saturated")
+# The range of r_f's cohesion term (field ``cohesion_range``; world/reward.py ``cohesion_range``):
+# ``paper`` is Eq. 24's 3 m at every swarm size; ``sqrt_n`` grows it as the radius a swarm of
+# N UAVs needs at the density of five, 3 sqrt(N / 5) m (beyond the paper).
+COHESION_RANGES = ("paper", "sqrt_n")
 
 
-__all__ = ["ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS", "ScenarioConfig"]
+__all__ = ["COHESION_RANGES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS",
+           "ScenarioConfig"]

@@ -23,13 +23,25 @@ def collision_reward(d: torch.Tensor) -> torch.Tensor:
     )
 
 
-def flocking_reward(heading_deviation: torch.Tensor, d_centre: torch.Tensor) -> torch.Tensor:
+def cohesion_range(mode: str, n_uavs: int) -> float:
+    """The range (m) of ``r_f``'s cohesion term: 3 m (Eq. 24, ``paper``), or ``3 sqrt(N / 5)`` m
+    (``sqrt_n``, beyond the paper: the radius that grows with a swarm of N UAVs at the density of
+    five, so that a large swarm is not rewarded for packing denser than a small one)."""
+    if mode == "paper":
+        return 3.0
+    if mode == "sqrt_n":
+        return 3.0 * math.sqrt(n_uavs / 5.0)
+    raise ValueError(f"cohesion_range must be paper or sqrt_n; got {mode!r}")
+
+
+def flocking_reward(heading_deviation: torch.Tensor, d_centre: torch.Tensor, reach: float = 3.0) -> torch.Tensor:
     """``r_f`` (Eq. 24): ``0.05 (1 - |wrap(phi_i - phi_bar)| / pi) + 0.05 (1 - d_c,i / 3)``.
 
     Args:
         heading_deviation: ``wrap(phi_i - phi_bar)``; d_centre: distance to the swarm centre.
+        reach: the cohesion term's range, Eq. 24's 3 m unless :func:`cohesion_range` says otherwise.
     """
-    return 0.05 * (1 - heading_deviation.abs() / math.pi) + 0.05 * (1 - d_centre / 3.0)
+    return 0.05 * (1 - heading_deviation.abs() / math.pi) + 0.05 * (1 - d_centre / reach)
 
 
 def smoothness_reward(action: torch.Tensor, prev_action: torch.Tensor) -> torch.Tensor:
@@ -38,11 +50,11 @@ def smoothness_reward(action: torch.Tensor, prev_action: torch.Tensor) -> torch.
 
 
 def total_reward(*, d_goal, d_goal_prev, alpha_goal, goal_radius, d_collision, heading_deviation,
-                 d_centre, action, prev_action) -> torch.Tensor:
+                 d_centre, action, prev_action, reach: float = 3.0) -> torch.Tensor:
     """``r = r_g + r_c + r_f + r_v`` (Eq. 21), all ``[B, N]``."""
     return (
         goal_reward(d_goal, d_goal_prev, alpha_goal, goal_radius)
         + collision_reward(d_collision)
-        + flocking_reward(heading_deviation, d_centre)
+        + flocking_reward(heading_deviation, d_centre, reach)
         + smoothness_reward(action, prev_action)
     )

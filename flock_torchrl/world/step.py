@@ -24,7 +24,7 @@ from .dynamics import action_to_command, clip_command, first_order_step, reflect
 from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, wrap
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
-from .reward import total_reward
+from .reward import cohesion_range, total_reward
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, goal_polar, laser_scan, near_neighbours,
                       scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
 from .state import world_state
@@ -179,7 +179,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         goal_radius=cfg.goal_radius, d_collision=d_collision,
         heading_deviation=wrap(heading - circular_mean(heading, -1, keepdim=True)),
         d_centre=torch.linalg.vector_norm(position - centre, dim=-1),
-        action=action, prev_action=prev_action)
+        action=action, prev_action=prev_action, reach=cohesion_range(cfg.cohesion_range, position.shape[-2]))
     reached = (now["d_goal"] < cfg.goal_radius).any(-1)
     crashed = (now["obstacle_distance"] < cfg.collision_distance).any(-1)
     stats = step_statistics(position, velocity, heading, now["obstacle_distance"], now["closest_pair"])
