@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -36,9 +37,9 @@ LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
 def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
     """``(MFLOP of one member-update, GFLOP/s of this core's matmul at the update's shape)``.
 
-    The FLOPs are the matrix products of one solo update of Policy3-G under ``recipe`` (what
-    ``torch.profiler`` counts with ``with_flops``: the networks' linear layers, forward and
-    backward); the rate is a ``[members, rows, 128] x [128, 128]`` batched product, ``rows`` the
+    The FLOPs are the matrix products of one member's update of Policy3-G under ``recipe`` (what
+    ``torch.profiler`` counts with ``with_flops`` in a population of two, halved: the networks'
+    linear layers, forward and backward); the rate is a ``[members, rows, 128] x [128, 128]`` batched product, ``rows`` the
     UAV rows of one minibatch, the hidden layers' shape, timed here. Their ratio bounds what any
     batching of the members' updates can reach on this core."""
     import time
@@ -54,12 +55,13 @@ def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
     env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0)
     seen = agentwise_done(env.rollout(200, break_when_any_done=False), env.n_agents)
     seen = seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
-    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0])
-    batch = seen[torch.randint(0, seen.shape[0], (cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 1)
+    # Two members under vmap: the batched products (bmm) the population runs, counted once each.
+    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1])
+    batch = seen[torch.randint(0, seen.shape[0], (2 * cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 2)
     learner.update(batch)
     with profile(with_flops=True) as prof:
         learner.update(batch)
-    flop = sum(e.flops for e in prof.key_averages() if e.flops)
+    flop = sum(e.flops for e in prof.key_averages() if e.flops) / 2
     rows = cfg.algo.batch_size * env.n_agents
     a, b = torch.randn(members, rows, 128), torch.randn(members, 128, 128)
     for _ in range(5):
@@ -93,6 +95,46 @@ def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: P
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int = 60) -> dict[str, list[float]]:
+    """Member-updates per second of the update alone, solo (TorchRL's SACLoss, eager) and a
+    population of ``members`` (vmapped), measured in this process in alternating blocks of
+    ``block`` member-updates, ``rounds`` times: both sides see the same machine at the same
+    minutes, which rows trained one after another in child processes do not (a shared
+    machine's speed drifts by tens of per cent within minutes)."""
+    import time
+
+    from flock_torchrl import FlockingEnv
+    from flock_torchrl.policies.learners import make_learner
+    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+
+    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, ["progress=false", "logger=none",
+                                                                          "reading=paper_fit"]))
+    env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0)
+    seen = agentwise_done(env.rollout(200, break_when_any_done=False), env.n_agents)
+    seen = seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+    size = cfg.algo.batch_size
+    solo = make_learner(env, cfg.algo, cfg.policy.critic_input)
+    population = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
+    solo_batches = [seen[torch.randint(0, seen.shape[0], (size,))] for _ in range(8)]
+    member_batches = [seen[torch.randint(0, seen.shape[0], (size * members,))].reshape(size, members)
+                      for _ in range(8)]
+    sides = {"solo": (solo.update, solo_batches, block), "population": (population.update, member_batches,
+                                                                          max(1, block // members))}
+    for update, batches, _ in sides.values():  # warm-up
+        for batch in batches[:3]:
+            update(batch)
+    rates: dict[str, list[float]] = {name: [] for name in sides}
+    for _ in range(rounds):
+        for name, (update, batches, calls) in sides.items():
+            start = time.perf_counter()
+            for i in range(calls):
+                update(batches[i % len(batches)])
+            per_call = members if name == "population" else 1
+            rates[name].append(calls * per_call / (time.perf_counter() - start))
+    return rates
+
+
 def population_lines(frames: int = 3000, members: int = 10, recipes: str = "paper,fast",
                      print_each: bool = True) -> list[str]:
     """The rows of every recipe, each line printed as soon as it is measured."""
@@ -105,6 +147,14 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
             line = (f"population {recipe:5s} cpu  arithmetic: {mflop:.0f} MFLOP of matmuls per member-update; this "
                     f"core's batched matmul at the update's shape runs {peak:.1f} GFLOP/s, so no batching of the "
                     f"updates passes {1000 * peak / mflop:.0f} member-updates/s of update time on one core")
+            lines.append(line)
+            if print_each:
+                print(line, flush=True)
+            rates = interleaved_updates(recipe, members)
+            solo, pop = (statistics.median(rates[k]) for k in ("solo", "population"))
+            line = (f"population {recipe:5s} cpu  the update alone, interleaved in one process ({len(rates['solo'])} "
+                    f"rounds, medians): solo {solo:.0f} updates/s, population of {members} {pop:.0f} member-updates/s "
+                    f"= {pop / solo:.2f}x")
             lines.append(line)
             if print_each:
                 print(line, flush=True)
