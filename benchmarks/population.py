@@ -23,6 +23,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import torch
@@ -34,27 +35,32 @@ from flock_torchrl.run.trainer import make_train_config
 LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
 
 
-def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
-    """``(MFLOP of one member-update, GFLOP/s of this core's matmul at the update's shape)``.
-
-    The FLOPs are the matrix products of one member's update of Policy3-G under ``recipe`` (what
-    ``torch.profiler`` counts with ``with_flops`` in a population of two, halved: the networks'
-    linear layers, forward and backward); the rate is a ``[members, rows, 128] x [128, 128]`` batched product, ``rows`` the
-    UAV rows of one minibatch, the hidden layers' shape, timed here. Their ratio bounds what any
-    batching of the members' updates can reach on this core."""
-    import time
-
-    from torch.profiler import profile
-
+def _transitions(recipe: str):
+    """``(config, env, transitions)``: Policy3-G under ``recipe`` and 200 steps of one world's
+    swarm transitions (random actions), what the in-process measurements feed the learners."""
     from flock_torchrl import FlockingEnv
-    from flock_torchrl.policies.population import PopulationLearner
     from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 
     cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, ["progress=false", "logger=none",
                                                                           "reading=paper_fit"]))
     env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0)
     seen = agentwise_done(env.rollout(200, break_when_any_done=False), env.n_agents)
-    seen = seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+    return cfg, env, seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+
+
+def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
+    """``(MFLOP of one member-update, GFLOP/s of this core's matmul at the update's shape)``.
+
+    The FLOPs are the matrix products of one member's update of Policy3-G under ``recipe`` (what
+    ``torch.profiler`` counts with ``with_flops`` in a population of two, halved: the networks'
+    linear layers, forward and backward); the rate is a ``[members, rows, 128] x [128, 128]``
+    batched product, ``rows`` the UAV rows of one minibatch, the hidden layers' shape, timed here. Their ratio bounds what any
+    batching of the members' updates can reach on this core."""
+    from torch.profiler import profile
+
+    from flock_torchrl.policies.population import PopulationLearner
+
+    cfg, env, seen = _transitions(recipe)
     # Two members under vmap: the batched products (bmm) the population runs, counted once each.
     learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1])
     batch = seen[torch.randint(0, seen.shape[0], (2 * cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 2)
@@ -101,18 +107,10 @@ def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int =
     ``block`` member-updates, ``rounds`` times: both sides see the same machine at the same
     minutes, which rows trained one after another in child processes do not (a shared
     machine's speed drifts by tens of per cent within minutes)."""
-    import time
-
-    from flock_torchrl import FlockingEnv
     from flock_torchrl.policies.learners import make_learner
     from flock_torchrl.policies.population import PopulationLearner
-    from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 
-    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, ["progress=false", "logger=none",
-                                                                          "reading=paper_fit"]))
-    env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0)
-    seen = agentwise_done(env.rollout(200, break_when_any_done=False), env.n_agents)
-    seen = seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+    cfg, env, seen = _transitions(recipe)
     size = cfg.algo.batch_size
     solo = make_learner(env, cfg.algo, cfg.policy.critic_input)
     population = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
@@ -139,6 +137,12 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                      print_each: bool = True) -> list[str]:
     """The rows of every recipe, each line printed as soon as it is measured."""
     lines = []
+
+    def say(line: str) -> None:
+        lines.append(line)
+        if print_each:
+            print(line, flush=True)
+
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in recipes.split(","):
@@ -147,17 +151,13 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
             line = (f"population {recipe:5s} cpu  arithmetic: {mflop:.0f} MFLOP of matmuls per member-update; this "
                     f"core's batched matmul at the update's shape runs {peak:.1f} GFLOP/s, so no batching of the "
                     f"updates passes {1000 * peak / mflop:.0f} member-updates/s of update time on one core")
-            lines.append(line)
-            if print_each:
-                print(line, flush=True)
+            say(line)
             rates = interleaved_updates(recipe, members)
             solo, pop = (statistics.median(rates[k]) for k in ("solo", "population"))
             line = (f"population {recipe:5s} cpu  the update alone, interleaved in one process ({len(rates['solo'])} "
                     f"rounds, medians): solo {solo:.0f} updates/s, population of {members} {pop:.0f} member-updates/s "
                     f"= {pop / solo:.2f}x")
-            lines.append(line)
-            if print_each:
-                print(line, flush=True)
+            say(line)
             for device in devices:
                 plan = [(1, "false")] + ([(1, "true")] if recipe == "paper" and device == "cpu" else []) \
                     + [(members, "false")]
@@ -175,13 +175,9 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                             f"{r['member_updates_per_s']:8.1f} member-updates/s ({r['member_updates_per_s'] / base:.2f}x "
                             f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; the update alone "
                             f"{in_update:.0f} member-updates/s, {in_update * mflop / 1000:.1f} GFLOP/s; {memory})")
-                    lines.append(line)
-                    if print_each:
-                        print(line, flush=True)
+                    say(line)
     if len(devices) == 1:
-        lines.append("population rows on a GPU: no CUDA device here (they run where torch.cuda.is_available())")
-        if print_each:
-            print(lines[-1], flush=True)
+        say("population rows on a GPU: no CUDA device here (they run where torch.cuda.is_available())")
     return lines
 
 

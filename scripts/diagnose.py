@@ -23,11 +23,13 @@ POLICIES = {
     "Policy3-G mixed (5+20+50)": [f"checkpoints/paper_fit/mixed/policy3_g/seed{k}.pt" for k in range(3)],
     "Policy3-G-crowd (5+20+50)": [f"checkpoints/paper_fit/mixed/policy3_g_crowd/seed{k}.pt" for k in range(3)],
 }
+# What a bare run diagnoses (the crowd policy is asked for by name, --policies "Policy3-G-crowd (5+20+50)").
+DEFAULT_POLICIES = ["Policy3-G (trained at 5)", "Policy3-G mixed (5+20+50)"]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--policies", nargs="+", choices=list(POLICIES), default=list(POLICIES)[:2])
+    parser.add_argument("--policies", nargs="+", choices=list(POLICIES), default=DEFAULT_POLICIES)
     parser.add_argument("--scenarios", nargs="+", default=["train", "forest"])
     parser.add_argument("--sizes", nargs="+", type=int, default=[20, 50])
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))

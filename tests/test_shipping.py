@@ -55,7 +55,6 @@ def test_exporting_the_same_run_twice_gives_the_same_bytes(tmp_path):
     assert a.read_bytes() == b.read_bytes()
 
 
-
 def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_three(tmp_path):
     """``n_cam`` is a policy scenario field: Policy3-G-crowd8's checkpoint records its eight
     slots and every evaluation world takes them (observation 2 + 3 x 2 + 8 x 3 = 32); a shipped
@@ -77,7 +76,8 @@ def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_thr
     handle = checkpoint_handle(path)
     env = policy_env(handle, "forest", "paper_fit", 2, 0, "cpu", {"n_uavs": 12})
     assert env.cfg.n_cam == 8 and env.reset()["agents", "observation"].shape[-1] == 32
-    assert evaluate(path, "forest", n_episodes=2, env_overrides={"n_uavs": 12}, max_steps=5).episodes["success"].numel() == 2
+    result = evaluate(path, "forest", n_episodes=2, env_overrides={"n_uavs": 12}, max_steps=5)
+    assert result.episodes["success"].numel() == 2
     older = checkpoint_handle(shipped_checkpoints_dir() / "paper_fit" / "policy3_g" / "seed0.pt")
     assert "n_cam" not in older.scenario
     env = policy_env(older, "forest", "paper_fit", 2, 0, "cpu", {"n_uavs": 12})

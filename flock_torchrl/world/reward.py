@@ -6,6 +6,8 @@ import math
 
 import torch
 
+from ..config.scenario import COHESION_RANGES
+
 
 def goal_reward(d_goal: torch.Tensor, d_goal_prev: torch.Tensor, alpha_goal: torch.Tensor,
                 goal_radius: float) -> torch.Tensor:
@@ -31,7 +33,7 @@ def cohesion_range(mode: str, n_uavs: int) -> float:
         return 3.0
     if mode == "sqrt_n":
         return 3.0 * math.sqrt(n_uavs / 5.0)
-    raise ValueError(f"cohesion_range must be paper or sqrt_n; got {mode!r}")
+    raise ValueError(f"cohesion_range must be one of {', '.join(COHESION_RANGES)}; got {mode!r}")
 
 
 def flocking_reward(heading_deviation: torch.Tensor, d_centre: torch.Tensor, reach: float = 3.0) -> torch.Tensor:
