@@ -182,6 +182,30 @@ def test_env_policy4g_collision_reward_uses_nearest_visible_uav(make_env, place,
     assert (r4 - r).tolist() == pytest.approx([-0.5, 0.0], abs=1e-6)
 
 
+def test_collision_reward_ramp_by_hand():
+    # ramp: -1 up to 0.5 m, then -(3 - d) / 2.5 up to 0 at 3 m:
+    # 0.2 -> -1; 0.5 -> -1; 1.0 -> -(3 - 1) / 2.5 = -0.8; 1.75 -> -1.25 / 2.5 = -0.5;
+    # 2.5 -> -0.5/2.5 = -0.2; 3.0 -> 0; 10 -> 0.
+    d = t([0.2, 0.5, 1.0, 1.75, 2.5, 3.0, 10.0])
+    assert collision_reward(d, "ramp").tolist() == pytest.approx([-1.0, -1.0, -0.8, -0.5, -0.2, 0.0, 0.0])
+    # The paper's bands at the same distances, for contrast: flat -0.5 from 0.5 m to 2 m.
+    assert collision_reward(d).tolist() == pytest.approx([-1.0, -1.0, -0.5, -0.5, -0.2, -0.2, 0.0])
+    with pytest.raises(ValueError, match="collision_shape"):
+        collision_reward(d, "smooth")
+
+
+def test_env_collision_shape_ramp_by_hand(make_env, place, step_with):
+    # The placement of the test above (UAV 0 sees UAV 1 at 1.5 m; UAV 1 sees nobody), now
+    # with the ramp: r_c = -(3 - 1.5) / 2.5 = -0.6 for UAV 0 against the bands' -0.5; 0 for UAV 1.
+    layout = ([[[10.0, 10.0], [11.5, 10.0]]], [[0.0, 0.0]], [[50.0, 10.0]])
+    action = [[[0.0, 0.0], [0.0, 0.0]]]
+    rewards = {}
+    for shape in ("paper", "ramp"):
+        env = place(make_env("s1", n_uavs=2, collision_reward_source="min_uav_scan", collision_shape=shape), *layout)
+        rewards[shape] = step_with(env, action)["agents", "reward"][0, :, 0]
+    assert (rewards["ramp"] - rewards["paper"]).tolist() == pytest.approx([-0.1, 0.0], abs=1e-6)
+
+
 def test_env_reward_stores_the_policy_action_even_under_the_instinct(make_env, place, step_with):
     # With the instinct driving UAV 0, r_v still compares *policy* actions: two identical actions
     # give r_v = 0 at step 2, whatever the executed commands were.

@@ -62,6 +62,8 @@ class ScenarioConfig(Schema):
     collision_reward_source: str = MISSING
     # --- r_f's range: paper (d_c / 3 m) | sqrt_n (d_c / (3 sqrt(N / 5)) m, beyond the paper)
     cohesion_range: str = MISSING
+    # --- r_c's shape: paper (Eq. 23's three bands) | ramp (linear from -1 at 0.5 m to 0 at 3 m, beyond the paper)
+    collision_shape: str = MISSING
     # --- starts, goals, obstacles (sections 1, 6, 9)
     area_center: List[float] = MISSING
     area_size: float = MISSING
@@ -153,6 +155,7 @@ class ScenarioConfig(Schema):
         choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
         choice(k("instinct_mode"), self.instinct_mode, INSTINCT_MODES)
         choice(k("cohesion_range"), self.cohesion_range, COHESION_RANGES)
+        choice(k("collision_shape"), self.collision_shape, COLLISION_SHAPES)
         if len(self.area_center) != 2 or not all(is_number(v) for v in self.area_center):
             reject(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
         lists: dict[str, list[list[float]]] = {}
@@ -224,7 +227,7 @@ SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 # checkpoint written before a field was added here flies with the scenario's value of it,
 # which is what it trained with (``n_cam``: 3 for every policy before Policy3-G-crowd8).
 POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
-                          "cohesion_range", "action_mode")
+                          "cohesion_range", "collision_shape", "action_mode")
 READINGS = ("literal", "paper_fit")
 # How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
 # ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
@@ -234,7 +237,11 @@ INSTINCT_MODES = ("paper", "no_push_in", "saturated")
 # ``paper`` is Eq. 24's 3 m at every swarm size; ``sqrt_n`` grows it as the radius a swarm of
 # N UAVs needs at the density of five, 3 sqrt(N / 5) m (beyond the paper).
 COHESION_RANGES = ("paper", "sqrt_n")
+# The shape of r_c (field ``collision_shape``; world/reward.py ``collision_reward``): ``paper`` is
+# Eq. 23's three bands, flat at -0.5 from 0.5 m to 2 m; ``ramp`` falls linearly from 0 at 3 m to -1
+# at 0.5 m, so that every centimetre of spacing pays (beyond the paper).
+COLLISION_SHAPES = ("paper", "ramp")
 
 
-__all__ = ["COHESION_RANGES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS",
+__all__ = ["COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS",
            "ScenarioConfig"]

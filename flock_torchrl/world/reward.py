@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from ..config.scenario import COHESION_RANGES
+from ..config.scenario import COHESION_RANGES, COLLISION_SHAPES
 
 
 def goal_reward(d_goal: torch.Tensor, d_goal_prev: torch.Tensor, alpha_goal: torch.Tensor,
@@ -16,10 +16,18 @@ def goal_reward(d_goal: torch.Tensor, d_goal_prev: torch.Tensor, alpha_goal: tor
     return torch.where(d_goal < goal_radius, torch.full_like(shaping, 20.0), shaping)
 
 
-def collision_reward(d: torch.Tensor) -> torch.Tensor:
-    """``r_c`` (Eq. 23): -0.2 on (2, 3], -0.5 on (0.5, 2], -1 on [0, 0.5], else 0."""
+def collision_reward(d: torch.Tensor, shape: str = "paper") -> torch.Tensor:
+    """``r_c`` (Eq. 23): -0.2 on (2, 3], -0.5 on (0.5, 2], -1 on [0, 0.5], else 0.
+
+    ``shape="ramp"`` (beyond the paper): -1 on [0, 0.5], then ``-(3 - d) / 2.5`` up to 0 at 3 m,
+    the same end points with a slope, so that more spacing always pays inside 3 m.
+    """
     # Levels built in d's dtype: scalar branches of torch.where would be float32 (-0.2 -> -0.200000003).
     zero = torch.zeros_like(d)
+    if shape == "ramp":
+        return -((3.0 - d) / 2.5).clamp(0.0, 1.0)
+    if shape != "paper":
+        raise ValueError(f"collision_shape must be one of {', '.join(COLLISION_SHAPES)}; got {shape!r}")
     return torch.where(
         d <= 0.5, zero - 1.0, torch.where(d <= 2.0, zero - 0.5, torch.where(d <= 3.0, zero - 0.2, zero))
     )
@@ -52,11 +60,11 @@ def smoothness_reward(action: torch.Tensor, prev_action: torch.Tensor) -> torch.
 
 
 def total_reward(*, d_goal, d_goal_prev, alpha_goal, goal_radius, d_collision, heading_deviation,
-                 d_centre, action, prev_action, reach: float = 3.0) -> torch.Tensor:
+                 d_centre, action, prev_action, reach: float = 3.0, shape: str = "paper") -> torch.Tensor:
     """``r = r_g + r_c + r_f + r_v`` (Eq. 21), all ``[B, N]``."""
     return (
         goal_reward(d_goal, d_goal_prev, alpha_goal, goal_radius)
-        + collision_reward(d_collision)
+        + collision_reward(d_collision, shape)
         + flocking_reward(heading_deviation, d_centre, reach)
         + smoothness_reward(action, prev_action)
     )

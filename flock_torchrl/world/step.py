@@ -179,7 +179,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         goal_radius=cfg.goal_radius, d_collision=d_collision,
         heading_deviation=wrap(heading - circular_mean(heading, -1, keepdim=True)),
         d_centre=torch.linalg.vector_norm(position - centre, dim=-1),
-        action=action, prev_action=prev_action, reach=cohesion_range(cfg.cohesion_range, position.shape[-2]))
+        action=action, prev_action=prev_action, reach=cohesion_range(cfg.cohesion_range, position.shape[-2]),
+        shape=cfg.collision_shape)
     reached = (now["d_goal"] < cfg.goal_radius).any(-1)
     crashed = (now["obstacle_distance"] < cfg.collision_distance).any(-1)
     stats = step_statistics(position, velocity, heading, now["obstacle_distance"], now["closest_pair"])
