@@ -258,11 +258,15 @@ def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
 
 
 @pytest.mark.slow
-def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_path):
+def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_path, monkeypatch):
     """Issue 32 item 4: ``others`` takes the rule-based baselines (rows named as in the paper, no
     training seed), and ``scenario="forest"`` flies every row in the forest, into scaling_forest.*
-    (the training scenario's scaling.* stay as they are)."""
+    (the training scenario's scaling.* stay as they are). The header names the shipped checkpoint
+    relative to the working directory, never by this machine's absolute path."""
     from flock_torchrl.report.scaling import scaling
+
+    repo = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(repo)
 
     cfg = app_config("scaling", reading="paper_fit", scenario="forest", policy_name="policy3_g", sizes=[3],
                      episodes=1, others=["policy_ma", "policy_op"])
@@ -274,3 +278,4 @@ def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_
     text = (tmp_path / "scaling_forest.md").read_text()
     assert "(reading `paper_fit`, forest)" in text and "Scenario `forest`" in text
     assert "| Policy-OP | — | 3 |" in text
+    assert "`checkpoints/paper_fit/policy3_g/seed0.pt`, `baseline:policy_ma`" in text and str(repo) not in text

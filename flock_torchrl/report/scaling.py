@@ -42,6 +42,19 @@ def training_of(handle) -> tuple[str, str]:
     return str(meta.get("experiment", "—")), "+".join(str(n) for n in sizes)
 
 
+def shown(origin: str) -> str:
+    """A checkpoint's origin as a table names it: a path inside the working directory relative to
+    it (``checkpoints/paper_fit/policy3_g/seed0.pt``, not this machine's absolute path), anything
+    else (``baseline:policy_ma``, a path elsewhere) as it is."""
+    path = Path(origin)
+    if not path.is_absolute():
+        return origin
+    try:
+        return path.relative_to(Path.cwd()).as_posix()
+    except ValueError:
+        return origin
+
+
 def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], None] = print) -> list[dict]:
     """``conf/scaling.yaml``'s app: evaluate ``cfg.policy_name`` (its lowest shipped seed) and each
     of ``cfg.others`` (policy ids or checkpoint files, e.g. the mixed-size policy or the baselines
@@ -72,7 +85,7 @@ def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], 
     write_csv(out / f"{stem}.csv", COLUMNS, rows)
     lines = [f"# Policies flown by N UAVs (reading `{reading}`{'' if scenario == 'train' else f', {scenario}'})", "",
              f"{where}, {episodes} episodes per size, evaluation seed {seed}, deterministic actions; "
-             "checkpoints " + ", ".join(f"`{h.origin}`" for h in handles) + ". Spawn radius by the reading's "
+             "checkpoints " + ", ".join(f"`{shown(h.origin)}`" for h in handles) + ". Spawn radius by the reading's "
              "swarm-size rule (docs/specification.md section 9). Rates with 95 % Wilson intervals; cells mean ± std.",
              "", "An episode ends when any UAV comes within 0.5 m of an obstacle: `crashed` counts those episodes.", "",
              "| policy | trained at N | N | spawn radius (m) | success % | safe_success % | crashed % | d_c (m) | "
