@@ -62,7 +62,7 @@ class ScenarioConfig(Schema):
     collision_reward_source: str = MISSING
     # --- r_f's range: paper (d_c / 3 m) | sqrt_n (d_c / (3 sqrt(N / 5)) m, beyond the paper)
     cohesion_range: str = MISSING
-    # --- r_c's shape: paper (Eq. 23's three bands) | ramp (linear from -1 at 0.5 m to 0 at 3 m, beyond the paper)
+    # --- r_c's shape: paper (Eq. 23's bands) | ramp (-1 at 0.5 m up to 0 at 3 m, beyond the paper)
     collision_shape: str = MISSING
     # --- starts, goals, obstacles (sections 1, 6, 9)
     area_center: List[float] = MISSING
@@ -243,5 +243,5 @@ COHESION_RANGES = ("paper", "sqrt_n")
 COLLISION_SHAPES = ("paper", "ramp")
 
 
-__all__ = ["COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS",
-           "ScenarioConfig"]
+__all__ = ["COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS",
+           "SCENARIO_FIELDS", "ScenarioConfig"]

@@ -181,8 +181,8 @@ def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") ->
 
 def contender_world(declared: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The world a contender flies in, the same through every door (``evaluate contender=``,
-    ``reproduce contenders=``): every policy scenario field (``fov``, ``n_cam``, ``instinct``,
-    ``tangential``, ``instinct_mode``, ``collision_reward_source``, ``action_mode``) at the scenarios' own value
+    ``reproduce contenders=``): every policy scenario field (``POLICY_SCENARIO_FIELDS``: the field of
+    view, camera slots, instinct, reward variants, action mode) at the scenarios' own value
     (``conf/scenario/train.yaml``: the field of view 0.5 pi, the instinct off), but those the
     contender declares."""
     base = compose_world("train").scenario

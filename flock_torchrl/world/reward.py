@@ -22,12 +22,12 @@ def collision_reward(d: torch.Tensor, shape: str = "paper") -> torch.Tensor:
     ``shape="ramp"`` (beyond the paper): -1 on [0, 0.5], then ``-(3 - d) / 2.5`` up to 0 at 3 m,
     the same end points with a slope, so that more spacing always pays inside 3 m.
     """
-    # Levels built in d's dtype: scalar branches of torch.where would be float32 (-0.2 -> -0.200000003).
-    zero = torch.zeros_like(d)
     if shape == "ramp":
         return -((3.0 - d) / 2.5).clamp(0.0, 1.0)
     if shape != "paper":
         raise ValueError(f"collision_shape must be one of {', '.join(COLLISION_SHAPES)}; got {shape!r}")
+    # Levels built in d's dtype: scalar branches of torch.where would be float32 (-0.2 -> -0.200000003).
+    zero = torch.zeros_like(d)
     return torch.where(
         d <= 0.5, zero - 1.0, torch.where(d <= 2.0, zero - 0.5, torch.where(d <= 3.0, zero - 0.2, zero))
     )
