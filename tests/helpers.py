@@ -48,6 +48,7 @@ BAD_SCENARIO_VALUES = [
     (dict(collision_reward_source="lidar"), "collision_reward_source"),
     (dict(collision_shape="smooth"), "collision_shape"),
     (dict(cohesion_range="linear"), "cohesion_range"),
+    (dict(actor_camera="wide"), "actor_camera"),
     (dict(action_mode="torque"), "action_mode"),
     (dict(circles=[[40.0, 40.0, 6.0], [45.0, 40.0, 2.0]]), "circles"),          # circle-circle overlap
     (dict(circles=[[14.0, 40.0, 2.0]]), "circles"),                            # circle inside rect x in [7, 13] +2

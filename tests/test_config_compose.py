@@ -223,10 +223,12 @@ def test_every_train_composition_keeps_the_values_main_composed(every):
             continue
         cfg = compose("train", [f"policy={policy}", f"experiment={experiment}", f"reading={reading}"])
         tree = json.loads(json.dumps(OmegaConf.to_container(cfg, resolve=True)).replace(shipped, "<checkpoints>"))
-        # Added since: the instinct's crowd mode, r_f's range and r_c's shape, the paper's for each of the twelve.
+        # Added since: the instinct's crowd mode, r_f's range, r_c's shape and the actor's camera,
+        # the paper's for each of the twelve.
         assert tree["scenario"].pop("instinct_mode") == "paper", name
         assert tree["scenario"].pop("cohesion_range") == "paper", name
         assert tree["scenario"].pop("collision_shape") == "paper", name
+        assert tree["scenario"].pop("actor_camera") == "paper", name
         assert set(tree) == set(entry), name
         for key, digest in entry.items():
             assert tree[key] == nodes[digest], f"{name}: {key}"

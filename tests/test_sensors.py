@@ -355,3 +355,26 @@ def test_near_neighbours_sense_what_all_pairs_sense(spacing):
         b = instinct_command(position, heading, goal, beams, nb_near, gain=1.0, r0=5.0, safe_distance=2.0,
                              tangential=True)
         assert torch.equal(a[0], b[0]) and torch.allclose(a[1], b[1], atol=1e-5, rtol=0)
+
+
+# ---------------------------------------------------------------- actor_camera (beyond the paper)
+def test_actor_camera_all_round_by_hand(make_env, place):
+    # UAV 0 at (40, 10) heading east; UAV 1 1.5 m behind it at (38.5, 10), heading east too.
+    # The paper's camera (literal: 0.5 pi total, +-45 deg) does not see UAV 1: slot [1, 0, 0].
+    # actor_camera=all_round fills the slot as the critic's camera does: distance 1.5 / 5 = 0.3,
+    # bearing pi / pi = 1 (behind, wrapped to +-pi), heading difference 0. The instinct keeps the
+    # field of view, so UAV 1 behind UAV 0 (within d_safe = 2 m) triggers nothing either way.
+    layout = ([[[40.0, 10.0], [38.5, 10.0]]], [[0.0, 0.0]], [[40.0, 70.0]])
+    seen = {}
+    for view in ("paper", "all_round"):
+        env = place(make_env("s1", n_uavs=2, instinct=True, actor_camera=view), *layout)
+        td = env.current()
+        seen[view] = (td["agents", "observation"][0, 0, 8:11], td["agents", "state"][0, 0, 8:11],
+                      env.world["sensed"]["instinct_triggered"][0].tolist())
+    assert seen["paper"][0].tolist() == [1.0, 0.0, 0.0]
+    slot = seen["all_round"][0]
+    assert slot[0].item() == pytest.approx(0.3) and abs(slot[1].item()) == pytest.approx(1.0)
+    assert slot[2].item() == pytest.approx(0.0)
+    assert torch.equal(seen["all_round"][0], seen["all_round"][1])  # the critic's slot, without noise
+    assert torch.equal(seen["paper"][1], seen["all_round"][1])      # the critic's state is untouched
+    assert seen["paper"][2] == seen["all_round"][2] == [False, True]  # UAV 1 sees UAV 0 ahead, 1.5 m

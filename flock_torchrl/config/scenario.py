@@ -64,6 +64,9 @@ class ScenarioConfig(Schema):
     cohesion_range: str = MISSING
     # --- r_c's shape: paper (Eq. 23's bands) | ramp (-1 at 0.5 m up to 0 at 3 m, beyond the paper)
     collision_shape: str = MISSING
+    # --- the actor's camera slots: paper (the camera's field of view, shared with the instinct) |
+    # all_round (every UAV within camera range, the instinct keeping the field of view; beyond the paper)
+    actor_camera: str = MISSING
     # --- starts, goals, obstacles (sections 1, 6, 9)
     area_center: List[float] = MISSING
     area_size: float = MISSING
@@ -156,6 +159,7 @@ class ScenarioConfig(Schema):
         choice(k("instinct_mode"), self.instinct_mode, INSTINCT_MODES)
         choice(k("cohesion_range"), self.cohesion_range, COHESION_RANGES)
         choice(k("collision_shape"), self.collision_shape, COLLISION_SHAPES)
+        choice(k("actor_camera"), self.actor_camera, ACTOR_CAMERAS)
         if len(self.area_center) != 2 or not all(is_number(v) for v in self.area_center):
             reject(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
         lists: dict[str, list[list[float]]] = {}
@@ -227,7 +231,7 @@ SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 # checkpoint written before a field was added here flies with the scenario's value of it,
 # which is what it trained with (``n_cam``: 3 for every policy before Policy3-G-crowd8).
 POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
-                          "cohesion_range", "collision_shape", "action_mode")
+                          "cohesion_range", "collision_shape", "actor_camera", "action_mode")
 READINGS = ("literal", "paper_fit")
 # How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
 # ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
@@ -241,7 +245,12 @@ COHESION_RANGES = ("paper", "sqrt_n")
 # Eq. 23's three bands, flat at -0.5 from 0.5 m to 2 m; ``ramp`` falls linearly from 0 at 3 m to -1
 # at 0.5 m, so that every centimetre of spacing pays (beyond the paper).
 COLLISION_SHAPES = ("paper", "ramp")
+# What the actor's camera slots see (field ``actor_camera``; world/step.py ``sense``): ``paper`` is
+# the camera of section 2, whose field of view the instinct shares; ``all_round`` fills the slots
+# from every UAV within camera range (as the critic's camera), while the instinct keeps acting on
+# the UAVs inside the field of view only (beyond the paper).
+ACTOR_CAMERAS = ("paper", "all_round")
 
 
-__all__ = ["COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS",
+__all__ = ["ACTOR_CAMERAS", "COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS",
            "SCENARIO_FIELDS", "ScenarioConfig"]

@@ -110,9 +110,12 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     true_shortest = shortest_beams(beams, max(cfg.n_scan, 1)) if cfg.noise else sensed_shortest
     d_goal, alpha_goal = goal_polar(position, heading, goal)
     o_g = goal_observation(position, heading, goal, cfg.goal_scale, (d_goal, alpha_goal))
+    # The actor's slots: the camera's field of view (the paper), or all round (``actor_camera``),
+    # the same (noisy) measurements either way; the instinct below keeps the field of view.
+    actor_view = neighbours if cfg.actor_camera == "paper" else neighbours.with_visibility(all_round.visible)
     observation = torch.cat(
         (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest),
-         camera_observation(neighbours, cfg.n_cam, cfg.camera_range)), -1)
+         camera_observation(actor_view, cfg.n_cam, cfg.camera_range)), -1)
     critic_state = torch.cat(
         (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest),
          camera_observation(all_round, cfg.n_cam, cfg.camera_range),
