@@ -28,6 +28,19 @@ _REASONS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "the disk
             errno.EROFS: "the file system is read-only"}
 
 
+def shown(origin: str) -> str:
+    """A checkpoint's origin as a table names it: a path inside the working directory relative to
+    it (``checkpoints/paper_fit/policy3_g/seed0.pt``, not this machine's absolute path), anything
+    else (``baseline:policy_ma``, a path elsewhere) as it is."""
+    path = Path(origin)
+    if not path.is_absolute():
+        return origin
+    try:
+        return path.relative_to(Path.cwd()).as_posix()
+    except ValueError:
+        return origin
+
+
 def write_failure(exc: BaseException) -> str | None:
     """``cannot write <file>: <why>`` for an :class:`OSError` of :data:`WRITE_ERRNOS`, else ``None``."""
     if not isinstance(exc, OSError) or exc.errno not in WRITE_ERRNOS:
@@ -118,4 +131,4 @@ def save_torch(obj: Any, path: str | os.PathLike) -> Path:
     return atomic_write(path, lambda tmp: torch.save(obj, tmp))
 
 
-__all__ = ["WRITE_ERRNOS", "atomic_write", "csv_text", "csv_value", "save_torch", "write_bytes", "write_csv", "write_failure", "write_text"]
+__all__ = ["WRITE_ERRNOS", "atomic_write", "csv_text", "csv_value", "save_torch", "shown", "write_bytes", "write_csv", "write_failure", "write_text"]

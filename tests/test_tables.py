@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from flock_torchrl.config import app_config
-from flock_torchrl.io import write_csv
+from flock_torchrl.io import shown, write_csv
 from flock_torchrl.policies.scripted import goal_seeking_policy
 from flock_torchrl.report.claims import CLAIMS, LEARNED, claim_verdicts, fidelity, fidelity_terms
 from flock_torchrl.report.markdown import claims_markdown, render_tables
@@ -165,6 +165,23 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     _, seeds = _read(tmp_path / "results" / "table3_seeds.csv")
     assert len(seeds) == 1
     assert "INCOMPLETE" in (tmp_path / "results" / "fidelity.md").read_text()
+
+
+def test_tables_name_a_checkpoint_by_its_path_in_the_working_directory(tmp_path, monkeypatch):
+    # A shipped table must not carry this machine's absolute path (checkpoints/ is inside the
+    # repository; the seed and episode rows name it from there).
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    assert shown(str(root / "checkpoints" / "literal" / "policy3_g" / "seed0.pt")) == "checkpoints/literal/policy3_g/seed0.pt"
+    assert shown("/elsewhere/seed0.pt") == "/elsewhere/seed0.pt" and shown("baseline:policy_ma") == "baseline:policy_ma"
+    cfg = app_config("reproduce", table=3, reading="literal", episodes=2, checkpoints_dir=root / "checkpoints",
+                     only=["Policy3-G"])
+    reproduce(cfg, tmp_path / "results", log=lambda m: None)
+    _, seeds = _read(tmp_path / "results" / "table3_seeds.csv")
+    _, episodes = _read(tmp_path / "results" / "table3_episodes.csv.gz")
+    assert len(seeds) >= 3 and len(episodes) == 2 * len(seeds)
+    assert {r["checkpoint"] for r in seeds} == {r["checkpoint"] for r in episodes}
+    assert all(r["checkpoint"].startswith("checkpoints/literal/policy3_g/seed") for r in seeds)
 
 
 @pytest.mark.slow

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from ..config import ConfigError, ReproduceConfig, check_tolerance
-from ..io import write_csv
+from ..io import shown, write_csv
 from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import (PolicyHandle, contender_handle, policy_config_of, resolve, shipped_checkpoints,
                                  world_label)
@@ -211,10 +211,10 @@ def reproduce(cfg: ReproduceConfig, out_dir: str | Path = ".", log: Callable[[st
                 notes[entry.key] = note
         key_cols = dict(zip(KEY_COLUMNS[table], entry.key))
         for part in result.parts or [result]:
-            seed_rows.append({**key_cols, "extra": row.extra, "checkpoint": part.source, **part.summary(),
+            seed_rows.append({**key_cols, "extra": row.extra, "checkpoint": shown(part.source), **part.summary(),
                               "rollout_steps": part.rollout_steps, "wall_time_s": round(part.wall_time_s, 2)})
             if cfg.episodes_csv:
-                episode_rows += [{**key_cols, "extra": row.extra, "checkpoint": part.source, **rec}
+                episode_rows += [{**key_cols, "extra": row.extra, "checkpoint": shown(part.source), **rec}
                                  for rec in part.records()]
     rows = comparison_rows(table, results, notes) + extra_rows
     out_dir = Path(out_dir)

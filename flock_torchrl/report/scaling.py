@@ -19,7 +19,7 @@ from typing import Callable, Sequence
 from matplotlib.figure import Figure
 
 from ..config import ScalingConfig, scenario_config
-from ..io import write_csv, write_text
+from ..io import shown, write_csv, write_text
 from ..policies.checkpoint import CheckpointError, load_checkpoint
 from ..policies.registry import resolve
 from ..run.rollout import evaluate_handle
@@ -40,19 +40,6 @@ def training_of(handle) -> tuple[str, str]:
     meta, experiment = payload["meta"], (payload.get("config") or {}).get("experiment", {})
     sizes = meta.get("trained_sizes") or experiment.get("swarm_sizes") or [meta["n_agents"]]
     return str(meta.get("experiment", "—")), "+".join(str(n) for n in sizes)
-
-
-def shown(origin: str) -> str:
-    """A checkpoint's origin as a table names it: a path inside the working directory relative to
-    it (``checkpoints/paper_fit/policy3_g/seed0.pt``, not this machine's absolute path), anything
-    else (``baseline:policy_ma``, a path elsewhere) as it is."""
-    path = Path(origin)
-    if not path.is_absolute():
-        return origin
-    try:
-        return path.relative_to(Path.cwd()).as_posix()
-    except ValueError:
-        return origin
 
 
 def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], None] = print) -> list[dict]:
