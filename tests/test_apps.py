@@ -107,6 +107,9 @@ def test_the_wheel_carries_the_configs(tmp_path):
     assert "flock_torchrl/report/reference/table3.csv" in names
     # The shipped policies travel with it, so the apps reach them from any folder (issue 18, item 4).
     assert "flock_torchrl/checkpoints/paper_fit/policy3_g/seed0.pt" in names
+    # Every shipped seed of both readings travels, and the installed package stays under 50 MB.
+    installed = sum(p.stat().st_size for p in site.rglob("*") if p.is_file())
+    assert installed < 50e6, f"the installed wheel takes {installed / 1e6:.1f} MB; keep it under 50 MB"
     code = ("import flock_torchrl.config as c; from flock_torchrl import FlockingEnv; "
             "env = FlockingEnv('s2', policy_id='policy3_g'); print(c.CONF_DIR, env.n_agents, c.default_checkpoints_dir())")
     env = {**os.environ, "PYTHONPATH": str(site)}
