@@ -170,11 +170,10 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
 def test_tables_name_a_checkpoint_by_its_path_in_the_working_directory(tmp_path, monkeypatch):
     # A shipped table must not carry this machine's absolute path (checkpoints/ is inside the
     # repository; the seed and episode rows name it from there).
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.chdir(root)
-    assert shown(str(root / "checkpoints" / "literal" / "policy3_g" / "seed0.pt")) == "checkpoints/literal/policy3_g/seed0.pt"
+    monkeypatch.chdir(ROOT)
+    assert shown(str(ROOT / "checkpoints" / "literal" / "policy3_g" / "seed0.pt")) == "checkpoints/literal/policy3_g/seed0.pt"
     assert shown("/elsewhere/seed0.pt") == "/elsewhere/seed0.pt" and shown("baseline:policy_ma") == "baseline:policy_ma"
-    cfg = app_config("reproduce", table=3, reading="literal", episodes=2, checkpoints_dir=root / "checkpoints",
+    cfg = app_config("reproduce", table=3, reading="literal", episodes=2, checkpoints_dir=ROOT / "checkpoints",
                      only=["Policy3-G"])
     reproduce(cfg, tmp_path / "results", log=lambda m: None)
     _, seeds = _read(tmp_path / "results" / "table3_seeds.csv")
@@ -282,9 +281,7 @@ def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_
     relative to the working directory, never by this machine's absolute path."""
     from flock_torchrl.report.scaling import scaling
 
-    repo = Path(__file__).resolve().parents[1]
-    monkeypatch.chdir(repo)
-
+    monkeypatch.chdir(ROOT)
     cfg = app_config("scaling", reading="paper_fit", scenario="forest", policy_name="policy3_g", sizes=[3],
                      episodes=1, others=["policy_ma", "policy_op"])
     rows = scaling(cfg, tmp_path, log=lambda message: None)
@@ -295,4 +292,4 @@ def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_
     text = (tmp_path / "scaling_forest.md").read_text()
     assert "(reading `paper_fit`, forest)" in text and "Scenario `forest`" in text
     assert "| Policy-OP | — | 3 |" in text
-    assert "`checkpoints/paper_fit/policy3_g/seed0.pt`, `baseline:policy_ma`" in text and str(repo) not in text
+    assert "`checkpoints/paper_fit/policy3_g/seed0.pt`, `baseline:policy_ma`" in text and str(ROOT) not in text
