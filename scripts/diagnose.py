@@ -22,6 +22,8 @@ POLICIES = {
     "Policy3-G (trained at 5)": [f"checkpoints/paper_fit/policy3_g/seed{k}.pt" for k in range(3)],
     "Policy3-G mixed (5+20+50)": [f"checkpoints/paper_fit/mixed/policy3_g/seed{k}.pt" for k in range(3)],
     "Policy3-G-crowd (5+20+50)": [f"checkpoints/paper_fit/mixed/policy3_g_crowd/seed{k}.pt" for k in range(3)],
+    "Policy3-G-crowd-ramp-allround (cluttered)":
+        [f"checkpoints/paper_fit/mixed_cluttered/policy3_g_crowd_ramp_allround/seed{k}.pt" for k in range(3)],
 }
 # What a bare run diagnoses (the crowd policy is asked for by name, --policies "Policy3-G-crowd (5+20+50)").
 DEFAULT_POLICIES = ["Policy3-G (trained at 5)", "Policy3-G mixed (5+20+50)"]

@@ -131,6 +131,18 @@ def test_the_wrapped_paper_instinct_flies_the_built_in_one():
         run_cell(handle, "train", "paper_fit", 5, "nope", n_episodes=1)
 
 
+def test_the_tangential_off_variant_drops_only_eq_28():
+    """Policy5-G's instinct has no tangential term: the variant flies its episodes unchanged.
+    Policy3-G's has one: dropping it changes the episodes."""
+    from flock_torchrl.policies.registry import resolve
+
+    for policy, same in (("policy5_g", True), ("policy3_g", False)):
+        handle = resolve(f"checkpoints/paper_fit/{policy}/seed0.pt", "paper_fit")[0]
+        paper = run_cell(handle, "forest", "paper_fit", 9, "paper", n_episodes=4)
+        radial = run_cell(handle, "forest", "paper_fit", 9, "tangential_off", n_episodes=4)
+        assert torch.equal(paper.episodes["d_min_uav"], radial.episodes["d_min_uav"]) is same, policy
+
+
 def test_the_instinct_wrapper_refuses_a_world_that_applies_its_own():
     from flock_torchrl.report.diagnosis import InstinctWrapper
 

@@ -8,7 +8,8 @@ Two tools, both on the evaluation protocol (seeded batched episodes, determinist
   repulsion instinct would command (split into its UAV and obstacle parts) and what the policy
   itself asked for, each projected on the obstacle's outward normal (:func:`crash_forensics`).
 * The variants (:data:`VARIANTS`) separate the causes at evaluation time, without retraining
-  and without touching the world: the paper's instinct; the instinct off; the actor fed the
+  and without touching the world: the paper's instinct; the instinct off; its tangential term
+  off (Eq. 28, as Policy5-G's); the actor fed the
   critic's all-round camera slots instead of its own; and instincts that hold in a crowd,
   applied by a wrapper (:class:`InstinctWrapper`) in a world whose own instinct is off and whose
   actions are velocity commands: the paper's instinct re-applied (a control: it must give the
@@ -47,6 +48,7 @@ OUTSIDE = {"instinct": False, "action_mode": "velocity"}  # the world of an inst
 VARIANTS: dict[str, tuple[dict[str, Any], str, str | None, str]] = {
     "paper": ({}, "own", None, "own"),                             # the paper's instinct, in the world
     "instinct_off": ({"instinct": False}, "own", None, "own"),
+    "tangential_off": ({"tangential": False}, "own", None, "own"),  # the instinct's push radial only (Eq. 28 off)
     "allround_camera": ({}, "allround", None, "own"),              # actor's camera slots from the critic's 360 deg camera
     "wrapped_paper": (OUTSIDE, "own", "paper", "own"),             # control: the same episodes as "paper"
     "nearest3": (OUTSIDE, "own", "nearest", "own"),
