@@ -196,8 +196,9 @@ publish-paper-recipe: $(STAMP)
 
 # The swarm-size tables (docs/specification.md section 7; issue 32): Policy3-G trained at 5 (its
 # lowest shipped seed), the mixed-size Policy3-G (seed 0), every shipped seed of Policy3-G-crowd
-# and of its variants (today crowd8, crowd-spread, crowd-ramp and crowd-ramp-allround; the
-# mixed, mixed_safe, mixed_large, mixed_forest and mixed_cluttered collections) and the
+# and of its variants (today crowd8, crowd-spread, crowd-ramp, crowd-ramp-allround and
+# crowd-ramp-allround-radial; the mixed, mixed_safe, mixed_large, mixed_forest and
+# mixed_cluttered collections) and the
 # rule-based Policy-MA and Policy-OP, at N = 5-100, on the training scenario
 # (results/<r>/scaling.*) and the forest (results/<r>/scaling_forest.*).
 SCALING_READINGS ?= literal paper_fit
