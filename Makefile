@@ -198,9 +198,8 @@ publish-paper-recipe: $(STAMP)
 # lowest shipped seed), the mixed-size Policy3-G (seed 0), every shipped seed of Policy3-G-crowd
 # and of its variants (today crowd8, crowd-spread, crowd-ramp, crowd-ramp-allround and
 # crowd-ramp-allround-radial; the mixed, mixed_safe, mixed_large, mixed_forest and
-# mixed_cluttered collections) and the
-# rule-based Policy-MA and Policy-OP, at N = 5-100, on the training scenario
-# (results/<r>/scaling.*) and the forest (results/<r>/scaling_forest.*).
+# mixed_cluttered collections) and the rule-based Policy-MA and Policy-OP, at N = 5-100, on the
+# training scenario (results/<r>/scaling.*) and the forest (results/<r>/scaling_forest.*).
 SCALING_READINGS ?= literal paper_fit
 SCALING_EPISODES ?= 500
 SCALING_SCENARIOS ?= train forest
