@@ -128,8 +128,16 @@ ship-checkpoints: $(STAMP)
 	$(PYTHON) scripts/ship.py reading=paper_fit
 
 # The paper's tables and figures from checkpoints/ and the baselines, into outputs/.
+# Table III also goes cell by cell beside the shipped results/<reading>/table3.csv: on another
+# machine (CPU, instruction set, thread count) float round-off differs, so each cell is judged
+# within REPRODUCE_TOLERANCE (rates 1 point, distances 0.02 m, speed 0.01 m/s, t_goal 0.2 s;
+# docs/decisions.md, "Reproducibility"); only EPISODES=500 is comparable with the shipped table.
+REPRODUCE_TOLERANCE := {success_rate:0.01,safe_success_rate:0.01,d_min_uav:0.02,d_min_obs:0.02,d_c:0.02,speed:0.01,t_goal:0.2}
 reproduce-table3: $(STAMP)
-	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES) $(R_ARG)
+	@echo "make reproduce-table3: twelve rows from the shipped checkpoints, $(EPISODES) episodes per checkpoint:" \
+		"about $$(( ($(EPISODES) * 14 + 499) / 500 )) min on one core (14 min at 500 episodes on a 2-core machine)"
+	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES) $(R_ARG) 'compare_to=results/$${scenario.reading}/table3.csv' \
+		'++compare_tolerance=$(REPRODUCE_TOLERANCE)'
 
 reproduce-table4: $(STAMP)
 	$(PYTHON) scripts/reproduce.py table=4 episodes=$(EPISODES) $(R_ARG)
