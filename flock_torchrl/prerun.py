@@ -1,8 +1,9 @@
 """What the command-line apps check before Hydra creates anything, beyond a config's schema:
 the output folder can be written, a resumed run folder is where its ``resume.yaml`` says, the
 sweep's jobs (enumerated with Hydra's public override parser), its launcher and its direction,
-the YAML files a command line adds; and where a bad value came from (:func:`blame`), so that an
-error names the command line's override or the file that set it.
+the YAML files of the folders a command line adds that the composition reads; and where a bad
+value came from (:func:`blame`), so that an error names the command line's override or the file
+that set it.
 """
 
 from __future__ import annotations

@@ -848,3 +848,23 @@ def test_a_reused_finished_run_says_which_run_it_shows(tmp_path, capsys, monkeyp
     assert second[0] == ("reused the finished run in runs/demo (resume=auto): nothing was trained; its checkpoint "
                          "and final evaluation follow (remove the folder to train it anew)")
     assert second[1:] == [line for line in first.splitlines() if line.startswith(("checkpoint: ", "evaluation ("))]
+
+
+def test_usage_regenerates_the_shipped_seeds_as_they_were_trained():
+    """docs/usage.md's commands for the shipped set run (make -n) and train what README's
+    "Shipped checkpoints" says: paper_fit's ten as populations, literal's 0-2 solo and 3-9 as a
+    population of seven, PolicyP-G's solo."""
+    block = (ROOT / "docs" / "usage.md").read_text().split("The shipped set is regenerated", 1)[1].split("```bash\n", 1)[1]
+    commands = [c for c in bash_commands("```bash\n" + block.split("```", 1)[0] + "```") if c.startswith("make train")]
+    for command in commands:
+        args = shlex.split(command)[1:]
+        proc = subprocess.run(["make", "-n", *args], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, f"{command}: {proc.stderr}"
+        if "train-fast-populations" in args and "POP_SEED=3" in args:
+            assert "seed=3 population=7" in proc.stdout and "reading=literal" in proc.stdout
+    text = " ".join(commands)
+    assert "train-fast-populations READING=paper_fit" in text and "make train-all READING=literal " in text + " "
+    assert "SEEDS=3,4,5,6,7,8,9 LEARNED=policyp_g" in text and "SEEDS=0,1,2,3,4,5,6,7,8,9 LEARNED=policyp_g" in text
+    readme = " ".join(README.read_text().split())
+    assert "under `paper_fit` the off-policy ones' ten trained as one population per policy" in readme
+    assert "under `literal` seeds 0-2 as solo runs and 3-9 as one population of seven" in readme
