@@ -704,9 +704,10 @@ def test_make_reproduce_table3_compares_every_cell_with_the_shipped_table_and_sa
     tolerance = re.search(r"^REPRODUCE_TOLERANCE := \{(.+)\}$", makefile, re.M).group(1)
     values = dict(item.split(":") for item in tolerance.split(","))
     assert sorted(values) == sorted(COMPARED)
-    stated = f"rates 1 point, distances 0.02 m, speed 0.01 m/s, t_goal 0.2 s"   # as README and decisions.md say
-    assert values == {"success_rate": "0.01", "safe_success_rate": "0.01", "d_min_uav": "0.02", "d_min_obs": "0.02",
-                      "d_c": "0.02", "speed": "0.01", "t_goal": "0.2"}, stated
+    stated = "rates 2 points, closest distances 0.05 m, d_c 0.1 m, speed 0.02 m/s, t_goal 0.5 s"   # README, decisions
+    assert values == {"success_rate": "0.02", "safe_success_rate": "0.02", "d_min_uav": "0.05", "d_min_obs": "0.05",
+                      "d_c": "0.1", "speed": "0.02", "t_goal": "0.5"}, stated
+    assert stated in " ".join(line.lstrip("# ") for line in makefile.splitlines())
     for doc in (README, ROOT / "docs" / "decisions.md"):
         assert stated in " ".join(doc.read_text().split()), doc.name
     assert "EPISODES=" in next(line for line in readme_lines() if line.startswith("make reproduce-table3"))
@@ -714,7 +715,7 @@ def test_make_reproduce_table3_compares_every_cell_with_the_shipped_table_and_sa
     proc = subprocess.run(["make", "-n", "reproduce-table3", "READING=literal"], cwd=ROOT, capture_output=True,
                           text=True, timeout=60)
     command = proc.stdout.split(".venv/bin/python scripts/reproduce.py ", 1)[1].replace("\\\n", " ")
-    cfg = app_config("reproduce", *[a for a in shlex.split(command) if "=" in a])
+    cfg = app_config("reproduce", [a for a in shlex.split(command) if "=" in a])
     assert cfg.compare_to == "results/literal/table3.csv" and sorted(cfg.compare_tolerance) == sorted(COMPARED)
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import re
 import sys
+import textwrap
 from pathlib import Path
 
 from ..config import ConfigError
@@ -223,8 +224,6 @@ def write_demo(log_path: str | Path, run_dir: str | Path, out: str | Path, threa
     """``out`` (docs/demo.md): the demo's quoted lines with the fingerprint of the machine that
     printed them, and how near another machine's lines land."""
     lines = demo_lines(Path(log_path).read_text(), run_dir)
-    import textwrap
-
     note = textwrap.fill(f"On a machine of another fingerprint the numbers land nearby: {tolerance_text()} "
                          "(`tests/test_front_door.py` checks which applies).", 100)
     text = (f"# `make demo`, as this machine printed it\n\n"
@@ -259,4 +258,5 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["DEMO_TOLERANCE", "blocks", "cpu", "demo_differences", "demo_lines", "demo_numbers", "machine", "quoted", "splice_file", "splice_text", "stale_blocks", "write_demo"]
+__all__ = ["DEMO_TOLERANCE", "blocks", "cpu", "demo_differences", "demo_lines", "demo_numbers", "machine", "quoted",
+           "splice_file", "splice_text", "stale_blocks", "tolerance_text", "write_demo"]
