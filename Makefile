@@ -140,8 +140,8 @@ REPRODUCE_TOLERANCE := {success_rate:0.02,safe_success_rate:0.02,d_min_uav:0.05,
 reproduce-table3: $(STAMP)
 	@echo "make reproduce-table3: twelve rows from the shipped checkpoints, $(EPISODES) episodes per checkpoint," \
 		"about $$(( ($(EPISODES) * 15 + 499) / 500 )) minutes (14-17 at 500 episodes on a 2-core machine)"
-	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES) $(R_ARG) 'compare_to=results/$${scenario.reading}/table3.csv' \
-		'++compare_tolerance=$(REPRODUCE_TOLERANCE)'
+	$(PYTHON) scripts/reproduce.py table=3 episodes=$(EPISODES) $(R_ARG) \
+		'compare_to=results/$${scenario.reading}/table3.csv' '++compare_tolerance=$(REPRODUCE_TOLERANCE)'
 
 reproduce-table4: $(STAMP)
 	$(PYTHON) scripts/reproduce.py table=4 episodes=$(EPISODES) $(R_ARG)

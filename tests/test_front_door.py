@@ -192,7 +192,8 @@ def test_the_demo_fingerprint_names_what_decides_round_off():
     recorded, quoted = demo_quoted()
     assert re.fullmatch(r".+, .+, \w+, torch \S+, 1 thread", recorded), recorded
     text = (ROOT / "docs" / "demo.md").read_text()
-    assert "another fingerprint the numbers land nearby: frames and updates equal, episodes within" in " ".join(text.split())
+    note = " ".join(text.split())
+    assert "another fingerprint the numbers land nearby: frames and updates equal, episodes within" in note
 
 
 def test_the_demo_check_is_exact_on_its_machine_and_within_tolerance_elsewhere():
@@ -700,7 +701,8 @@ def test_make_reproduce_table3_compares_every_cell_with_the_shipped_table_and_sa
     body = makefile_target("reproduce-table3")
     lines = body.splitlines()
     assert lines[1].lstrip().startswith("@echo") and "min" in lines[1] + lines[2]   # the estimate, before it starts
-    assert "'compare_to=results/$${scenario.reading}/table3.csv'" in body and "++compare_tolerance=$(REPRODUCE_TOLERANCE)" in body
+    assert "'compare_to=results/$${scenario.reading}/table3.csv'" in body
+    assert "'++compare_tolerance=$(REPRODUCE_TOLERANCE)'" in body
     tolerance = re.search(r"^REPRODUCE_TOLERANCE := \{(.+)\}$", makefile, re.M).group(1)
     values = dict(item.split(":") for item in tolerance.split(","))
     assert sorted(values) == sorted(COMPARED)
@@ -855,7 +857,8 @@ def test_usage_regenerates_the_shipped_seeds_as_they_were_trained():
     """docs/usage.md's commands for the shipped set run (make -n) and train what README's
     "Shipped checkpoints" says: paper_fit's ten as populations, literal's 0-2 solo and 3-9 as a
     population of seven, PolicyP-G's solo."""
-    block = (ROOT / "docs" / "usage.md").read_text().split("The shipped set is regenerated", 1)[1].split("```bash\n", 1)[1]
+    usage = (ROOT / "docs" / "usage.md").read_text()
+    block = usage.split("The shipped set is regenerated", 1)[1].split("```bash\n", 1)[1]
     commands = [c for c in bash_commands("```bash\n" + block.split("```", 1)[0] + "```") if c.startswith("make train")]
     for command in commands:
         args = shlex.split(command)[1:]

@@ -6,9 +6,9 @@ new one and their difference for each of :data:`COMPARED`, and whether the rows 
 tolerance stay within it (``|new - reference| <= tolerance``). It answers "does my retrain of
 the shipped set give policies of the same quality?" (``make check-train-all``, at the retrain's
 tolerance) and "does this machine reproduce the shipped table?" (``make reproduce-table3``, every
-column at the Makefile's ``REPRODUCE_TOLERANCE``); it changes no exit status, the verdict is a finding,
-not a failure. A row evaluated with another number of episodes per checkpoint than the
-reference's is not comparable: its cells are never within.
+column at the Makefile's ``REPRODUCE_TOLERANCE``); it changes no exit status, the verdict is a
+finding, not a failure. A row evaluated with another number of episodes per checkpoint than
+the reference's is not comparable: its cells are never within.
 """
 
 from __future__ import annotations
@@ -132,7 +132,8 @@ def render_comparison(table: int, rows: Sequence[Mapping[str, Any]], tolerance: 
         for m in COMPARED:
             mark = "" if m not in tolerance or not r.get("comparable", True) else \
                 " ✓" if r[f"{m}_within"] else " ✗"
-            cells_text.append(f"{_cell(m, r[f'{m}_reference'])} / {_cell(m, r[m])} / {_delta(m, r[f'{m}_delta'])}{mark}")
+            ref, new, delta = _cell(m, r[f"{m}_reference"]), _cell(m, r[m]), _delta(m, r[f"{m}_delta"])
+            cells_text.append(f"{ref} / {new} / {delta}{mark}")
         cells_text.append("yes" if r["within"] else "no" if r.get("comparable", True) else not_comparable(r))
         lines.append("| " + " | ".join(cells_text) + " |")
     return "\n".join(lines) + "\n"
