@@ -31,13 +31,13 @@ from typing import Any, Callable
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from .io import write_failure
+from .io import shown, write_failure
 from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
 from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_writable, check_yaml_files,
-                     config_folders, sweep_direction, sweep_jobs)
+                     composed_yaml_files, config_folders, sweep_direction, sweep_jobs)
 
 EXIT_ERROR = 2
 # The resolvers and schemas the apps' YAMLs use, registered when the apps are imported: a
@@ -97,6 +97,9 @@ def _run_train(cfg: TrainConfig, out: Path) -> float:
     result = train(cfg, out)
     if any(result.split.values()):
         _say(result.split_line())
+    else:   # nothing ran in this process: a finished run's folder, resumed (resume=auto)
+        _say(f"reused the finished run in {shown(str(Path(result.run_dir).resolve()))} (resume={cfg.resume}): "
+             "nothing was trained; its checkpoint and final evaluation follow (remove the folder to train it anew)")
     _say(f"checkpoint: {result.checkpoint} ({result.frames} frames, {result.episodes} episodes, "
          f"{result.updates} updates, {result.seconds:.0f} s)")
     last = result.evaluations[-1] if result.evaluations else {}
@@ -336,7 +339,7 @@ def main(app: str, noted: list[int] | None = None) -> Any:
 
     try:
         APP_SIGNALS.start(noted)
-        _guard(lambda: check_yaml_files(config_folders(sys.argv[1:])))
+        _guard(lambda: check_yaml_files(composed_yaml_files(config_folders(sys.argv[1:]), app, sys.argv[1:])))
         result = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
         stopped = APP_SIGNALS.sweep_stopped()
         if stopped:  # a joblib sweep stopped: its jobs said so

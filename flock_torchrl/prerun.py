@@ -1,8 +1,9 @@
 """What the command-line apps check before Hydra creates anything, beyond a config's schema:
 the output folder can be written, a resumed run folder is where its ``resume.yaml`` says, the
 sweep's jobs (enumerated with Hydra's public override parser), its launcher and its direction,
-the YAML files a command line adds; and where a bad value came from (:func:`blame`), so that an
-error names the command line's override or the file that set it.
+the YAML files of the folders a command line adds that the composition reads; and where a bad
+value came from (:func:`blame`), so that an error names the command line's override or the file
+that set it.
 """
 
 from __future__ import annotations
@@ -223,26 +224,145 @@ def config_folders(argv: list[str]) -> list[Path]:
     return folders
 
 
-def check_yaml_files(folders: list[Path], depth: int = 4) -> None:
-    """Refuse a YAML file that does not parse in a folder the command line adds to the search
-    path (Hydra would fail on it with a long ``yaml.parser`` traceback), naming the file and
-    the line."""
-    for folder in folders:
-        if not folder.is_dir():
+DEFAULTS_KEY = re.compile(r"^(?P<override>override\s+)?(?:optional\s+)?(?P<path>[^@\s]+)(?:@\S+)?$")
+CHOICE_REF = re.compile(r"\$\{([\w/]+)\}")
+
+
+def _command_line(argv: list[str], app: str) -> tuple[str, dict[str, list[str]]]:
+    """The primary config's name (``-cn``, else the app's) and the command line's group
+    choices, group -> names (a choice sweep: each; a glob: ``*``), parsed with Hydra's public
+    override parser."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    for flag in (("--config-dir", "-cd"), ("--config-name", "-cn"), ("--config-path", "-cp"), ("--cfg", "-c"),
+                 ("--package", "-p"), ("--experimental-rerun",)):
+        parser.add_argument(*flag)
+    known, rest = parser.parse_known_args(argv)
+    choices: dict[str, list[str]] = {}
+    for arg in rest:
+        if arg.startswith("-") or "=" not in arg:
             continue
-        for path in sorted(folder.rglob("*.yaml")):
-            parts = path.relative_to(folder).parts
-            if len(parts) > depth or any(p.startswith(".") for p in parts[:-1]):
+        try:
+            override = OverridesParser.create().parse_overrides([arg])[0]
+        except Exception:  # Hydra names a malformed override itself
+            continue
+        if override.is_delete() or "." in override.key_or_group:
+            continue
+        if override.is_sweep_override():
+            names = ["*"] if not override.is_discrete_sweep() or override.value_type.name.startswith("GLOB") else \
+                list(override.sweep_string_iterator())
+        else:
+            value = override.value()
+            names = [str(v) for v in value] if isinstance(value, list) else [str(value)]
+        choices[override.key_or_group] = names
+    return known.config_name or app, choices
+
+
+def _defaults(node: Any) -> list[tuple[bool, str | None, Any]]:
+    """A config's defaults list as ``(override, group, value)``; a config named without a group
+    (``- world``) is ``(False, None, name)``; ``_self_`` and malformed entries are left out."""
+    out: list[tuple[bool, str | None, Any]] = []
+    for item in (node.get("defaults") or []) if isinstance(node, dict) else []:
+        if isinstance(item, str) and item.strip() != "_self_":
+            m = DEFAULTS_KEY.match(item.strip())
+            if m:
+                out.append((False, None, m["path"]))
+        elif isinstance(item, dict) and len(item) == 1:
+            ((key, value),) = item.items()
+            m = DEFAULTS_KEY.match(str(key).strip())
+            if m:
+                out.append((bool(m["override"]), m["path"], value))
+    return out
+
+
+def _within(group: str, path: str) -> str:
+    """A defaults entry's path as Hydra reads it: absolute with a leading ``/``, else relative to
+    the group of the config that lists it."""
+    return path[1:] if path.startswith("/") else f"{group}/{path}" if group else path
+
+
+def composed_yaml_files(folders: list[Path], app: str, argv: list[str]) -> list[Path]:
+    """The YAML files of ``folders`` (the ones a command line adds to the search path) that
+    composing ``app`` with ``argv`` reads: the primary config and, through the defaults lists of
+    the package's and the user's configs, each group's chosen option (the command line's choice,
+    else a defaults list's ``override``, else its first default; ``${group}`` in a choice read as
+    that group's choice). A file of those folders that no choice names is not read, as Hydra does
+    not read it. Where a choice cannot be known (a glob, an unresolved interpolation), every
+    file of that group in ``folders`` counts as read."""
+    from .config import CONF_DIR
+
+    primary, command = _command_line(argv, app)
+    sources = [Path(f) for f in folders if Path(f).is_dir()] + [Path(CONF_DIR)]
+    if len(sources) == 1:
+        return []
+    forced: dict[str, Any] = {}
+    for _ in range(8):   # until the defaults lists' overrides are all known
+        used: list[Path] = []
+        chosen: dict[str, list[str]] = dict(command)   # also a group no defaults list names (hydra/launcher=...)
+        found_overrides: dict[str, Any] = {}
+        queue = [primary, *(f"{group}/{name}" for group, names in command.items() for name in names)]
+        seen: set[str] = set()
+        deferred: list[tuple[str, list[str]]] = []
+
+        def choose(group: str, value: Any) -> None:
+            value = command.get(group, forced.get(group, value))
+            names = value if isinstance(value, list) else [] if value in (None, "???") else [value]
+            names = [str(n) for n in names]
+            if any(CHOICE_REF.search(n) for n in names):
+                deferred.append((group, names))
+                return
+            chosen.setdefault(group, names)
+            queue.extend(f"{group}/{n}" for n in chosen[group])
+
+        while queue or deferred:
+            if not queue:   # interpolated choices, once what they name is known (else: every file of the group)
+                group, names = deferred.pop(0)
+                known = [CHOICE_REF.sub(lambda m: (chosen.get(m[1]) or ["*"])[0], n) for n in names]
+                chosen.setdefault(group, known)
+                queue.extend(f"{group}/{n}" for n in chosen[group])
                 continue
-            try:
-                yaml.safe_load(path.read_text())
-            except yaml.YAMLError as exc:
-                mark = getattr(exc, "problem_mark", None)
-                where = f" (line {mark.line + 1}, column {mark.column + 1}: {exc.problem})" if mark else ""
-                raise AppError(f"{path} is not valid YAML{where}") from None
-            except (OSError, UnicodeDecodeError) as exc:
-                raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
+            path = queue.pop(0)
+            if path in seen:
+                continue
+            seen.add(path)
+            node, group = None, path.rpartition("/")[0]
+            for source in sources:
+                for file in sorted(source.glob(f"{path}.yaml")) if "*" in path else [source / f"{path}.yaml"]:
+                    if not file.is_file():
+                        continue
+                    if source != sources[-1]:
+                        used.append(file)
+                    if node is None:
+                        try:
+                            node = yaml.safe_load(file.read_text())
+                        except (yaml.YAMLError, OSError, UnicodeDecodeError):
+                            node = {}   # the check names it
+            for override, entry_group, value in _defaults(node):
+                if entry_group is None:
+                    queue.append(_within(group, str(value)))
+                elif override:
+                    found_overrides[_within(group, entry_group)] = value
+                else:
+                    choose(_within(group, entry_group), value)
+        if found_overrides == forced:
+            break
+        forced = found_overrides
+    return list(dict.fromkeys(used))
+
+
+def check_yaml_files(paths: list[Path]) -> None:
+    """Refuse a YAML file that does not parse among ``paths`` (the files of the folders a
+    command line adds to the search path that the composition reads, :func:`composed_yaml_files`;
+    Hydra would fail on it with a long ``yaml.parser`` traceback), naming the file and the line."""
+    for path in paths:
+        try:
+            yaml.safe_load(Path(path).read_text())
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f" (line {mark.line + 1}, column {mark.column + 1}: {exc.problem})" if mark else ""
+            raise AppError(f"{path} is not valid YAML{where}") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
 
 
 __all__ = ["AppError", "OBJECTIVE_DIRECTIONS", "blame", "check_launcher", "check_resume_folder", "check_writable",
-           "check_yaml_files", "config_folders", "sweep_direction", "sweep_jobs"]
+           "check_yaml_files", "composed_yaml_files", "config_folders", "sweep_direction", "sweep_jobs"]

@@ -250,11 +250,16 @@ def test_a_broken_yaml_in_the_search_path_is_one_line_naming_the_file(tmp_path, 
     bad.parent.mkdir(parents=True)
     bad.write_text("name: x\nn_uavs: [1, 2\nfoo: 1\n")
     where = ["-cd", str(tmp_path / "mine")] if how == "-cd" else [f"hydra.searchpath=[file://{tmp_path / 'mine'}]"]
-    proc = script("evaluate.py", *where, "policy=policy_ma", "episodes=2", f"hydra.run.dir={tmp_path / 'out'}",
-                  cwd=tmp_path, timeout=120)
+    proc = script("evaluate.py", *where, "policy=policy_ma", "scenario=bad", "episodes=2",
+                  f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120)
     assert proc.returncode == 2
     one_line(proc.stderr, f"{bad} is not valid YAML (line 3, column 4: expected ',' or ']', but got ':')")
     assert not (tmp_path / "out").exists()
+    # a broken file the composition does not read is no reason to refuse (Hydra does not parse it either)
+    (tmp_path / "mine" / "scenario" / "corridor.yaml").write_text("defaults: [train, _self_]\nname: corridor\n")
+    proc = script("evaluate.py", *where, "policy=policy_ma", "scenario=corridor", "--cfg", "job", cwd=tmp_path,
+                  timeout=120)
+    assert proc.returncode == 0 and "name: corridor" in proc.stdout, proc.stderr[-2000:]
 
 
 @pytest.mark.parametrize("args, key", [

@@ -4,8 +4,11 @@
 writes ``table3_vs_reference.md`` / ``.csv`` beside the table: per row the reference value, the
 new one and their difference for each of :data:`COMPARED`, and whether the rows named in the
 tolerance stay within it (``|new - reference| <= tolerance``). It answers "does my retrain of
-the shipped set give policies of the same quality?" (``make check-train-all``); it changes no
-exit status, the verdict is a finding, not a failure.
+the shipped set give policies of the same quality?" (``make check-train-all``, at the retrain's
+tolerance) and "does this machine reproduce the shipped table?" (``make reproduce-table3``, every
+column at the Makefile's ``REPRODUCE_TOLERANCE``); it changes no exit status, the verdict is a
+finding, not a failure. A row evaluated with another number of episodes per checkpoint than
+the reference's is not comparable: its cells are never within.
 """
 
 from __future__ import annotations
@@ -49,17 +52,27 @@ def compare_rows(table: int, reference: Mapping[tuple[str, ...], Mapping[str, An
             continue
         ref = reference[key]
         item: dict[str, Any] = dict(zip(KEY_COLUMNS[table], key))
+        item["episodes_reference"], item["episodes"] = episodes_per_checkpoint(ref), episodes_per_checkpoint(row)
+        comparable = not (item["episodes_reference"] > 0 and item["episodes"] > 0) or \
+            item["episodes_reference"] == item["episodes"]    # unknown on either side: compared
+        item["comparable"] = comparable
         verdicts = []
         for m in COMPARED:
             a, b = as_float(ref.get(m)), as_float(row.get(m))
             item[f"{m}_reference"], item[m], item[f"{m}_delta"] = a, b, b - a
             if m in tolerance:
-                ok = bool(abs(b - a) <= tolerance[m])   # NaN compares False
+                ok = comparable and bool(abs(b - a) <= tolerance[m])   # NaN compares False
                 item[f"{m}_within"] = ok
                 verdicts.append(ok)
-        item["within"] = all(verdicts)
+        item["within"] = comparable and all(verdicts)
         out.append(item)
     return out
+
+
+def episodes_per_checkpoint(row: Mapping[str, Any]) -> float:
+    """A table row's episodes per evaluated checkpoint (NaN where the row does not say)."""
+    n, k = as_float(row.get("n_episodes")), as_float(row.get("n_checkpoints"))
+    return n / k if k > 0 else n
 
 
 def _cell(m: str, value: float) -> str:
@@ -74,22 +87,55 @@ def _delta(m: str, value: float) -> str:
     return f"{100 * value:+.1f} pp" if m.endswith("_rate") else f"{value:+.3f}"
 
 
+def tolerance_text(tolerance: Mapping[str, float]) -> str:
+    """``success_rate 1.0 pp, d_min_uav 0.100`` (``none`` when empty)."""
+    return ", ".join(f"{m} {_delta(m, v).lstrip('+')}" for m, v in tolerance.items()) or "none"
+
+
+def counts(rows: Sequence[Mapping[str, Any]], tolerance: Mapping[str, float]) -> tuple[int, int, int]:
+    """Rows within, toleranced cells within, toleranced cells."""
+    cells = [bool(r[f"{m}_within"]) for r in rows for m in COMPARED if m in tolerance]
+    return sum(bool(r["within"]) for r in rows), sum(cells), len(cells)
+
+
+def not_comparable(row: Mapping[str, Any]) -> str:
+    return (f"not comparable: {row['episodes']:g} episodes per checkpoint here, {row['episodes_reference']:g} "
+            "in the reference")
+
+
+def verdict_lines(table: int, rows: Sequence[Mapping[str, Any]], tolerance: Mapping[str, float]) -> list[str]:
+    """One line per compared row: each toleranced cell ✓ (within) or ✗ (outside, with its
+    difference), or why the row is not comparable."""
+    lines = []
+    for r in rows:
+        name = " / ".join(str(r[c]) for c in KEY_COLUMNS[table])
+        if not r.get("comparable", True):
+            lines.append(f"{name}: {not_comparable(r)}")
+            continue
+        cells = [f"{m} ✓" if r[f"{m}_within"] else f"{m} ✗ ({_delta(m, r[f'{m}_delta'])})"
+                 for m in COMPARED if m in tolerance]
+        lines.append(f"{name}: {'within tolerance' if r['within'] else 'OUTSIDE tolerance'}: {', '.join(cells)}")
+    return lines
+
+
 def render_comparison(table: int, rows: Sequence[Mapping[str, Any]], tolerance: Mapping[str, float],
                       reference: str | Path, candidate: str) -> str:
-    tol = ", ".join(f"{m} {_delta(m, v).lstrip('+')}" for m, v in tolerance.items()) or "none"
-    n_in = sum(bool(r["within"]) for r in rows)
+    n_in, cells_in, cells = counts(rows, tolerance)
     lines = [f"# Table {table}: {candidate} beside {reference}", "",
-             f"Per row: reference / new / Δ (new − reference). Tolerance ({tol}): {n_in} of {len(rows)} rows "
-             f"within it; a cell outside it is marked ✗.", "",
+             f"Per row: reference / new / Δ (new − reference). Tolerance ({tolerance_text(tolerance)}): {n_in} of "
+             f"{len(rows)} rows within it ({cells_in} of {cells} cells); a cell within it is marked ✓, one outside "
+             "✗.", "",
              "| " + " | ".join([*KEY_COLUMNS[table], *COMPARED, "within"]) + " |",
              "|" + "---|" * (len(KEY_COLUMNS[table]) + len(COMPARED) + 1)]
     for r in rows:
-        cells = [str(r[c]) for c in KEY_COLUMNS[table]]
+        cells_text = [str(r[c]) for c in KEY_COLUMNS[table]]
         for m in COMPARED:
-            mark = " ✗" if m in tolerance and not r[f"{m}_within"] else ""
-            cells.append(f"{_cell(m, r[f'{m}_reference'])} / {_cell(m, r[m])} / {_delta(m, r[f'{m}_delta'])}{mark}")
-        cells.append("yes" if r["within"] else "no")
-        lines.append("| " + " | ".join(cells) + " |")
+            mark = "" if m not in tolerance or not r.get("comparable", True) else \
+                " ✓" if r[f"{m}_within"] else " ✗"
+            ref, new, delta = _cell(m, r[f"{m}_reference"]), _cell(m, r[m]), _delta(m, r[f"{m}_delta"])
+            cells_text.append(f"{ref} / {new} / {delta}{mark}")
+        cells_text.append("yes" if r["within"] else "no" if r.get("comparable", True) else not_comparable(r))
+        lines.append("| " + " | ".join(cells_text) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -106,4 +152,5 @@ def write_comparison(table: int, stem: str, out_dir: str | Path, reference: str 
     return csv_path, md_path, rows
 
 
-__all__ = ["compare_rows", "read_table", "render_comparison", "write_comparison"]
+__all__ = ["compare_rows", "counts", "episodes_per_checkpoint", "read_table",
+           "render_comparison", "tolerance_text", "verdict_lines", "write_comparison"]

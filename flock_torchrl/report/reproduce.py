@@ -28,7 +28,7 @@ from ..policies.registry import (PolicyHandle, contender_handle, policy_config_o
                                  world_label)
 from ..run.results import EvaluationResult
 from ..run.rollout import evaluate_handle, try_contender
-from .compare import read_table, write_comparison
+from .compare import counts, read_table, tolerance_text, verdict_lines, write_comparison
 from .markdown import render_tables
 from .reference import (KEY_COLUMNS, PAPER_RECIPE_ROW, TABLE_NUMBERS, TableEntry, comparison_row, comparison_rows,
                         csv_columns, table_entries)
@@ -231,9 +231,11 @@ def reproduce(cfg: ReproduceConfig, out_dir: str | Path = ".", log: Callable[[st
     if compare_to is not None:
         source = _collection(recipe, reading, cfg.checkpoints_dir, cfg.paper_recipe_dir)
         _, md_path, compared = write_comparison(table, stem, out_dir, compare_to, rows, tolerance, str(source))
-        n_in = sum(bool(r["within"]) for r in compared)
-        log(f"[table {table}] beside {compare_to}: {n_in} of {len(compared)} rows within the tolerance "
-            f"{dict(tolerance)}; wrote {md_path}")
+        n_in, cells_in, cells = counts(compared, tolerance)
+        for line in verdict_lines(table, compared, tolerance):
+            log(f"[table {table}] {line}")
+        log(f"[table {table}] beside {compare_to}: {n_in} of {len(compared)} rows, {cells_in} of {cells} cells within "
+            f"the tolerance ({tolerance_text(tolerance)}); wrote {md_path}")
     return {"rows": rows, "markdown": out_dir / f"{stem}.md", "csv": csv_path, "failed": [], "fidelity": score,
             "comparison": compared}
 

@@ -58,6 +58,15 @@ def split_line(split: dict[str, float]) -> str:
     return f"time split ({total:.0f} s of training loop): {parts}"
 
 
+def seeds_label(seeds: list[int]) -> str:
+    """What a progress bar calls a run's seeds: ``seed 3``; a population's ``seeds 0-9``."""
+    seeds = list(seeds)
+    if len(seeds) == 1:
+        return f"seed {seeds[0]}"
+    contiguous = seeds == list(range(seeds[0], seeds[0] + len(seeds)))
+    return f"seeds {seeds[0]}-{seeds[-1]}" if contiguous else "seeds " + ",".join(map(str, seeds))
+
+
 class Progress:
     """tqdm bar over frames."""
 
@@ -81,4 +90,4 @@ class Progress:
         self.bar.close()
 
 
-__all__ = ["BUCKETS", "Progress", "TimeSplit", "rates", "split_line"]
+__all__ = ["BUCKETS", "Progress", "TimeSplit", "rates", "seeds_label", "split_line"]

@@ -35,7 +35,7 @@ from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra
                     memory_estimate, prepare, resume_payload)
 from .signals import (SHUTDOWN_TIMEOUT, STOP_SIGNALS, Signals, Stopped, TrainingInterrupted, shutdown,
                       start_resource_tracker)
-from .timing import Progress, TimeSplit, rates
+from .timing import Progress, TimeSplit, rates, seeds_label
 
 
 class Training:
@@ -197,7 +197,7 @@ class Training:
             self.logger.log_hparams(logger_hparams(self.resolved))
         if self.cfg.progress:
             self.progress = Progress(self.cfg.experiment.max_frames, self.counters,
-                                     f"{self.cfg.policy.name} seed {self.cfg.seed}")
+                                     f"{self.cfg.policy.name} {seeds_label(self.cfg.seeds)}")
         self._open_episode_logs(resumed)
 
     def _open_episode_logs(self, resumed: bool) -> None:
