@@ -1,0 +1,247 @@
+"""The 3-D world (docs/specification.md section 11).
+
+The 2-D world is its exact special case: a 3-D scenario whose UAVs, goal and obstacles lie in
+one plane (fixed altitude, unbounded cylinders and boxes), with climb disabled and one laser ring
+at elevation 0, flown with a zero third action, gives the 2-D scenario's trajectories, rewards,
+termination and metrics bit for bit, and its observation and state with the elevation and climb
+entries inserted. Then hand-computed answers for the 3-D geometry, kinematics and instinct."""
+
+import math
+
+import pytest
+import torch
+
+from flock_torchrl import FlockingEnv
+from flock_torchrl.config.compose import scenario_config
+from flock_torchrl.config.scenario import FULL_HEIGHT, ConfigError
+from flock_torchrl.world.dynamics import action_to_command, clamp_altitude, update_attitude
+from flock_torchrl.world.geometry import Obstacles, cast_rays_3d, distance_to_obstacles
+from flock_torchrl.world.instinct import repulsion
+from flock_torchrl.world.sensors import off_axis, planar_entries
+
+# The plane lifted into space: every UAV, the goal and every obstacle at 10 m.
+LIFTED = {"dims": 3, "climb_max": 0.0, "laser_rings": [0.0], "spawn_height": 0.0, "spawn_altitude": [10.0, 10.0],
+          "goal_altitude": [10.0, 10.0]}
+SCENARIOS = ["train", "s1", "s2", "s3", "s4", "s5"]
+
+
+def _pair(scenario: str, reading: str, policy: str, num_envs: int, compile_step: bool = False):
+    kwargs = dict(num_envs=num_envs, seed=3, reading=reading, policy_id=policy, extras="all", compile_step=compile_step)
+    return FlockingEnv(scenario, **kwargs), FlockingEnv(scenario, **kwargs, **LIFTED)
+
+
+def _equal(x: torch.Tensor, y: torch.Tensor, key, exact: bool) -> None:
+    """Bit for bit (NaN where NaN), or, compiled, within float round-off with discrete values equal.
+
+    Compiled, the plane and space are two graphs: the compiler vectorises and fuses their
+    transcendental functions differently, so they agree to the last bits only (the tolerances of
+    tests/test_equivalence.py), while every flag, index and count stays identical."""
+    if exact or x.dtype in (torch.bool, torch.long):
+        assert torch.equal(x.nan_to_num(-1.0) if x.is_floating_point() else x,
+                           y.nan_to_num(-1.0) if y.is_floating_point() else y), key
+    else:
+        torch.testing.assert_close(x, y, atol=3e-3 if key == "scan" else 1e-4, rtol=0, equal_nan=True, msg=str(key))
+
+
+def _assert_special_case(flat: FlockingEnv, lifted: FlockingEnv, steps: int, seed: int = 0) -> int:
+    """Reset both, fly ``steps`` steps of the same random actions; every quantity bit for bit (eager).
+    Returns how many UAV-steps flew the instinct's command (so a test can ask that it was exercised)."""
+    obs_keep = planar_entries(lifted.cfg)
+    state_keep = planar_entries(lifted.cfg, critic=True)
+    generator = torch.Generator().manual_seed(seed)
+    exact = not flat.compile_step
+    a, b = flat.reset(), lifted.reset()
+    instinct = 0
+
+    def same(x, y):
+        _equal(x["agents", "observation"], y["agents", "observation"][..., obs_keep], "observation", exact)
+        _equal(x["agents", "state"], y["agents", "state"][..., state_keep], "state", exact)
+        _equal(x["agents", "position"], y["agents", "position"][..., :2], "position", exact)
+        assert bool((y["agents", "position"][..., 2] == 10.0).all())
+        _equal(x["agents", "velocity"], y["agents", "velocity"][..., :2], "velocity", exact)
+        _equal(x["agents", "heading"], y["agents", "heading"], "heading", exact)
+        assert bool((y["agents", "climb"] == 0).all())
+        _equal(x["agents", "scan"], y["agents", "scan"], "scan", exact)
+        _equal(x["agents", "scan_obstacle"], y["agents", "scan_obstacle"], "scan_obstacle", exact)
+        _equal(x["goal"], y["goal"][..., :2], "goal", exact)
+        for key in x["episode"].keys():
+            _equal(x["episode", key], y["episode", key], ("episode", key), exact)
+
+    same(a, b)
+    for _ in range(steps):
+        action = torch.rand(flat.num_envs, flat.n_agents, 2, generator=generator) * 2 - 1
+        a["agents", "action"] = action
+        b["agents", "action"] = torch.cat((action, torch.zeros_like(action[..., :1])), -1)
+        a, a_next = flat.step_and_maybe_reset(a)
+        b, b_next = lifted.step_and_maybe_reset(b)
+        for key in ("observation", "state", "reward", "position", "velocity", "heading", "scan", "command",
+                    "instinct"):
+            x, y = a["next", "agents", key], b["next", "agents", key]
+            if key == "observation":
+                y = y[..., obs_keep]
+            elif key == "state":
+                y = y[..., state_keep]
+            elif key in ("position", "velocity", "command"):
+                y = y[..., :2]
+            _equal(x, y, key, exact)
+        assert torch.equal(a["next", "done"], b["next", "done"])
+        instinct += int(a["next", "agents", "instinct"].sum())
+        same(a_next, b_next)
+    return instinct
+
+
+@pytest.mark.parametrize("reading", ["literal", "paper_fit"])
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_the_plane_is_the_special_case_of_space_eager(scenario, reading):
+    flat, lifted = _pair(scenario, reading, "policy3_g", num_envs=6)
+    assert lifted.obs_dim == 27 and lifted.state_dim == 32 and flat.obs_dim == 17
+    assert _assert_special_case(flat, lifted, steps=40) > 0  # the instinct was exercised
+
+
+@pytest.mark.parametrize("policy", ["policy4_g", "policy5_g", "policy1"])
+def test_the_special_case_holds_for_every_sensing_variant(policy):
+    flat, lifted = _pair("train", "paper_fit", policy, num_envs=4)
+    _assert_special_case(flat, lifted, steps=25, seed=1)
+
+
+def test_the_special_case_holds_for_the_rule_based_baselines_velocity_commands():
+    kwargs = dict(num_envs=3, seed=2, reading="literal", policy_id="policy_ma", extras="all")
+    flat, lifted = FlockingEnv("s5", **kwargs), FlockingEnv("s5", **kwargs, **LIFTED)
+    a, b = flat.reset(), lifted.reset()
+    generator = torch.Generator().manual_seed(4)
+    for _ in range(20):
+        command = (torch.rand(3, flat.n_agents, 2, generator=generator) * 2 - 1) * 3
+        a["agents", "action"] = command
+        b["agents", "action"] = torch.cat((command, torch.zeros_like(command[..., :1])), -1)
+        a, _ = flat.step_and_maybe_reset(a)
+        b, _ = lifted.step_and_maybe_reset(b)
+        assert torch.equal(a["next", "agents", "reward"], b["next", "agents", "reward"])
+        assert torch.equal(a["next", "agents", "position"], b["next", "agents", "position"][..., :2])
+
+
+@pytest.mark.parametrize("scenario, reading", [("train", "paper_fit"), ("s4", "literal")])
+def test_the_special_case_holds_compiled(scenario, reading):
+    flat, lifted = _pair(scenario, reading, "policy3_g", num_envs=4, compile_step=True)
+    _assert_special_case(flat, lifted, steps=6)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("reading", ["literal", "paper_fit"])
+@pytest.mark.parametrize("scenario", SCENARIOS)
+def test_the_special_case_holds_compiled_on_every_scenario(scenario, reading):
+    flat, lifted = _pair(scenario, reading, "policy3_g", num_envs=4, compile_step=True)
+    _assert_special_case(flat, lifted, steps=30)
+
+
+def test_space_compiled_matches_eager():
+    """The compiled 3-D step is the eager one's twin (up to float reordering), in a world that climbs."""
+    kwargs = dict(num_envs=4, seed=0, reading="paper_fit", policy_id="policy3_g", extras="all")
+    eager = FlockingEnv("train3d", **kwargs)
+    compiled = FlockingEnv("train3d", **kwargs, compile_step=True)
+    a, b = eager.reset(), compiled.reset()
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        action = torch.rand(4, 5, 3, generator=generator) * 2 - 1
+        a["agents", "action"], b["agents", "action"] = action, action.clone()
+        a, _ = eager.step_and_maybe_reset(a)
+        b, _ = compiled.step_and_maybe_reset(b)
+        torch.testing.assert_close(a["next", "agents", "position"], b["next", "agents", "position"], atol=1e-4, rtol=0)
+        torch.testing.assert_close(a["next", "agents", "reward"], b["next", "agents", "reward"], atol=1e-4, rtol=0)
+
+
+# ---------------------------------------------------------------------------- hand-computed answers
+def test_action_to_command_in_space():
+    # a = (0, 1, 1): straight on at V = 3 m/s, climbing at gamma_max = 30 deg: (3 cos 30, 0, 3 sin 30).
+    command = action_to_command(torch.tensor([[0.0, 1.0, 1.0]]), torch.tensor([0.0]), math.pi / 6)
+    torch.testing.assert_close(command, torch.tensor([[3 * math.sqrt(3) / 2, 0.0, 1.5]]))
+    # a0 = 1 turns by 90 deg; a2 = -1 dives.
+    command = action_to_command(torch.tensor([[1.0, -1.0, -1.0]]), torch.tensor([0.0]), math.pi / 6)
+    torch.testing.assert_close(command, torch.tensor([[0.0, math.sqrt(3) / 2, -0.5]]), atol=1e-6, rtol=0)
+
+
+def test_attitude_and_altitude_limits():
+    heading, climb = update_attitude(torch.tensor([0.3]), torch.tensor([0.0]), torch.tensor([[0.0, 1.0, 1.0]]), 0.05)
+    torch.testing.assert_close(heading, torch.tensor([math.pi / 2]))
+    torch.testing.assert_close(climb, torch.tensor([math.pi / 4]))
+    # Straight up: the heading is kept (no horizontal speed), the climb is +90 deg.
+    heading, climb = update_attitude(torch.tensor([0.3]), torch.tensor([0.0]), torch.tensor([[0.0, 0.0, 2.0]]), 0.05)
+    assert heading.item() == pytest.approx(0.3) and climb.item() == pytest.approx(math.pi / 2)
+    position, velocity = clamp_altitude(torch.tensor([[1.0, 2.0, 31.0], [0.0, 0.0, 5.0]]),
+                                        torch.tensor([[1.0, 0.0, 2.0], [0.0, 0.0, -1.0]]), 0.5, 30.0)
+    assert position.tolist() == [[1.0, 2.0, 30.0], [0.0, 0.0, 5.0]]
+    assert velocity.tolist() == [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]
+
+
+def _one(t):
+    return t[None]
+
+
+def test_rays_hit_finite_cylinders_boxes_and_spheres():
+    # A cylinder of radius 1 at (5, 0) from z = 0 to 2; a box 2 x 2 at (0, 5), z 0-2; a sphere r 1 at (0, 0, 5).
+    obstacles = Obstacles(_one(torch.tensor([[5.0, 0.0, 1.0, 0.0, 2.0]])),
+                          _one(torch.tensor([[0.0, 5.0, 2.0, 2.0, 0.0, 2.0]])),
+                          _one(torch.tensor([[0.0, 0.0, 5.0, 1.0]])))
+    origin = torch.tensor([[[0.0, 0.0, 1.0]]])
+    # Beams: level along +x (hits the cylinder at 4), level along +y (box at 4), up 45 deg along +x
+    # (passes over the cylinder: at horizontal distance 4 it is at z = 5), straight-ish up (sphere).
+    e = torch.tensor([0.0, 0.0, math.pi / 4, 1.5])
+    horizontal = torch.tensor([[[[1.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 0.0]]]])
+    for static_shapes in (False, True):
+        d, idx = cast_rays_3d(origin, horizontal, torch.cos(e), torch.sin(e), obstacles, 10.0, static_shapes)
+        assert d[0, 0, 0].item() == pytest.approx(4.0) and idx[0, 0, 0].item() == 0
+        assert d[0, 0, 1].item() == pytest.approx(4.0) and idx[0, 0, 1].item() == 1
+        assert d[0, 0, 2].item() == pytest.approx(10.0) and idx[0, 0, 2].item() == -1
+        # The near-vertical beam meets the sphere: |o + t u - c| = 1 with o - c = (0, 0, -4), so
+        # t = 4 sin 1.5 - sqrt(16 sin^2 1.5 - 15).
+        expected = 4 * math.sin(1.5) - math.sqrt(16 * math.sin(1.5) ** 2 - 15)
+        assert idx[0, 0, 3].item() == 2 and d[0, 0, 3].item() == pytest.approx(expected, abs=1e-5)
+    # Signed distances: 1 m above the cylinder's top edge at its axis; inside the box; 1 m under the sphere.
+    points = torch.tensor([[[5.0, 0.0, 3.0], [0.0, 5.0, 1.0], [0.0, 0.0, 3.0]]])
+    d = distance_to_obstacles(points, obstacles)[0]
+    assert d[0, 0].item() == pytest.approx(1.0) and d[1, 1].item() == pytest.approx(-1.0)
+    assert d[2, 2].item() == pytest.approx(1.0)
+    # A corner: 1 m beyond the cylinder's rim and 1 m above its top: sqrt(2).
+    d = distance_to_obstacles(torch.tensor([[[7.0, 0.0, 3.0]]]), obstacles)[0]
+    assert d[0, 0].item() == pytest.approx(math.sqrt(2))
+
+
+def test_the_camera_is_a_cone_about_the_direction_of_flight():
+    # Level flight along +x; a UAV straight above is 90 deg off axis; climbing at 90 deg it is on axis.
+    assert off_axis(torch.tensor(0.0), torch.tensor(math.pi / 2), torch.tensor(0.0)).item() == pytest.approx(
+        math.pi / 2)
+    assert off_axis(torch.tensor(0.0), torch.tensor(math.pi / 2), torch.tensor(math.pi / 2)).item() == pytest.approx(
+        0.0, abs=1e-6)
+    # 60 deg to the side and 30 deg up, level flight: cos theta = cos 60 cos 30 -> theta = acos(sqrt(3) / 4).
+    theta = off_axis(torch.tensor(math.pi / 3), torch.tensor(math.pi / 6), torch.tensor(0.0)).item()
+    assert theta == pytest.approx(math.acos(math.sqrt(3) / 4), abs=1e-6)
+    # Level and in the plane it is |alpha| exactly.
+    assert off_axis(torch.tensor(-0.7), torch.tensor(0.0), torch.tensor(0.0)).item() == torch.tensor(0.7).item()
+
+
+def test_the_tangential_term_leads_towards_the_goal_in_space():
+    # A neighbour 1 m ahead (+x) within r0 = 5: v_r = 1 * (5 - 1) * (-1, 0, 0) = (-4, 0, 0). The goal
+    # lies straight up and ahead, (10, 0, 10): its part orthogonal to v_r is (0, 0, 10), so v_t = (0, 0, 4).
+    v = repulsion(torch.tensor([[[[1.0, 0.0, 0.0]]]]), torch.tensor([[[True]]]), torch.tensor([[[10.0, 0.0, 10.0]]]),
+                  1.0, 5.0)
+    torch.testing.assert_close(v, torch.tensor([[[-4.0, 0.0, 4.0]]]))
+    # Level goal: the 2-D answer, v_r turned by +-90 deg towards the goal (here +y).
+    v = repulsion(torch.tensor([[[[1.0, 0.0, 0.0]]]]), torch.tensor([[[True]]]), torch.tensor([[[10.0, 3.0, 0.0]]]),
+                  1.0, 5.0)
+    torch.testing.assert_close(v, torch.tensor([[[-4.0, -4.0, 0.0]]]) * torch.tensor([1.0, -1.0, 1.0]))
+    # Without the tangential term only the radial push.
+    v = repulsion(torch.tensor([[[[0.0, 0.0, -2.0]]]]), torch.tensor([[[True]]]), torch.tensor([[[10.0, 0.0, 0.0]]]),
+                  1.0, 5.0, tangential=False)
+    torch.testing.assert_close(v, torch.tensor([[[0.0, 0.0, 3.0]]]))
+
+
+def test_config_checks_name_the_field():
+    with pytest.raises(ConfigError, match="scenario.dims"):
+        scenario_config("train", dims=4)
+    with pytest.raises(ConfigError, match="scenario.spheres"):
+        scenario_config("train", spheres=[[1.0, 2.0, 3.0, 1.0]])  # needs dims: 3
+    with pytest.raises(ConfigError, match="scenario.laser_rings"):
+        scenario_config("train", dims=3, laser_rings=[1.6])
+    with pytest.raises(ConfigError, match="scenario.spawn_altitude"):
+        scenario_config("train", dims=3, spawn_altitude=[40.0, 45.0])
+    cfg = scenario_config("train", dims=3)
+    assert cfg.circles == [[40.0, 40.0, 6.0, -FULL_HEIGHT, FULL_HEIGHT]] and cfg.n_laser == 108
