@@ -8,6 +8,8 @@ entries inserted. Then hand-computed answers for the 3-D geometry, kinematics an
 
 import math
 
+import imageio.v2 as imageio
+import numpy as np
 import pytest
 import torch
 
@@ -87,6 +89,7 @@ def _assert_special_case(flat: FlockingEnv, lifted: FlockingEnv, steps: int, see
         assert torch.equal(a["next", "done"], b["next", "done"])
         instinct += int(a["next", "agents", "instinct"].sum())
         same(a_next, b_next)
+        a, b = a_next, b_next
     return instinct
 
 
@@ -245,3 +248,123 @@ def test_config_checks_name_the_field():
         scenario_config("train", dims=3, spawn_altitude=[40.0, 45.0])
     cfg = scenario_config("train", dims=3)
     assert cfg.circles == [[40.0, 40.0, 6.0, -FULL_HEIGHT, FULL_HEIGHT]] and cfg.n_laser == 108
+
+
+# ---------------------------------------------------------------------------- the 3-D env, end to end
+@pytest.mark.parametrize("scenario, overrides", [("train3d", {}), ("forest3d", {}), ("wall3d", {}),
+                                                 ("s5", {"dims": 3}), ("s4", {"dims": 3, "spawn_height": 2.0})])
+def test_check_env_specs_in_space(scenario, overrides):
+    from torchrl.envs.utils import check_env_specs
+
+    env = FlockingEnv(scenario, num_envs=3, seed=0, extras="all", **overrides)
+    check_env_specs(env)
+    td = env.rollout(4)
+    assert td["agents", "action"].shape[-1] == 3 and td["agents", "position"].shape[-1] == 3
+    assert td["agents", "scan"].shape[-1] == 108  # three rings of 36
+
+
+def test_space_spawns_in_altitude_and_keeps_the_limits():
+    env = FlockingEnv("train3d", num_envs=64, seed=0, extras="physics")
+    td = env.reset()
+    z = td["agents", "position"][..., 2]
+    # Each start within +-1.5 m of its swarm's altitude, drawn in [8, 12] m.
+    assert float((z.amax(-1) - z.amin(-1)).max()) <= 3.0 + 1e-5
+    assert bool(((z >= 8 - 1.5 - 1e-5) & (z <= 12 + 1.5 + 1e-5)).all())
+    assert z.std() > 0.3 and bool(((td["goal"][:, 2] >= 8) & (td["goal"][:, 2] <= 12)).all())
+    # Climbing at full command for 100 s never leaves [ground, ceiling].
+    for _ in range(150):
+        td["agents", "action"] = torch.tensor([0.0, 1.0, 1.0]).expand(64, 5, 3).clone()
+        td, _ = env.step_and_maybe_reset(td)
+        assert float(td["next", "agents", "position"][..., 2].max()) <= 30.0
+
+
+def test_wall3d_can_only_be_passed_over_or_under():
+    """The box spans the area: flying level into it crashes; the starts face it from the north."""
+    env = FlockingEnv("wall3d", num_envs=32, seed=0, extras="physics")
+    td = env.reset()
+    assert bool((td["agents", "position"][..., 1] > 60).all()) and bool((td["goal"][:, 1] < 20).all())
+    crashed = torch.zeros(32, dtype=torch.bool)
+    for _ in range(100):
+        # Steer straight at the goal, level (a2 = 0): o_g's azimuth over pi is alpha_g / pi.
+        turn = (2 * td["agents", "observation"][..., 1]).clamp(-1, 1)
+        td["agents", "action"] = torch.stack((turn, torch.ones_like(turn), torch.zeros_like(turn)), -1)
+        stepped, td = env.step_and_maybe_reset(td)
+        crashed |= stepped["next", "episode", "crashed"]
+        assert not bool(stepped["next", "episode", "reached"].any())
+    assert bool(crashed.all())
+
+
+def test_packed_and_static_sensing_agree_in_space():
+    """The eager step's pruning (pairs within camera range, obstacles within laser range) and the
+    compiled step's every-pair measurement give the same 3-D sensing."""
+    from flock_torchrl.world.step import sense
+
+    env = FlockingEnv("forest3d", num_envs=4, seed=1, n_uavs=20, policy_id="policy3_g", spawn_height=6.0,
+                      spawn_altitude=[9.0, 11.0])
+    env.reset()
+    state = {k: env.world[k] for k in env.world.keys() if k not in ("episode", "sensed")}
+    packed = sense(state, env._static, env.cfg, static_shapes=False)
+    full = sense(state, env._static, env.cfg, static_shapes=True)
+    for key in packed:
+        if packed[key].dtype in (torch.bool, torch.long):
+            assert torch.equal(packed[key], full[key]), key
+        else:
+            torch.testing.assert_close(packed[key], full[key], atol=1e-5, rtol=0, msg=key)
+
+
+@pytest.mark.parametrize("policy", ["policy_ma", "policy_op"])
+def test_the_baselines_fly_in_space(policy):
+    from flock_torchrl import make_policy
+
+    env = FlockingEnv("train3d", num_envs=2, seed=0, policy_id=policy, extras=("physics", "laser"))
+    td = env.rollout(30, policy=make_policy(policy, env))
+    command = td["agents", "action"]
+    assert command.shape[-1] == 3 and bool(torch.isfinite(command).all())
+    assert float(command[..., 2].abs().max()) > 0  # they steer in altitude (towards the goal's)
+
+
+def test_baseline_sensing_in_space_by_hand():
+    from flock_torchrl.policies.baselines.sensing import nearest_hits, neighbour_view
+    from flock_torchrl.policies.baselines.vasarhelyi import repulsion as op_repulsion
+
+    # Beam 1 of ring 1 (rings at 0 and +30 deg, 4 beams each: index 4 + 1) hits obstacle 0 at 2 m,
+    # heading 0: the hit is 2 (cos 30 cos 90, cos 30 sin 90, sin 30) = (0, sqrt 3, 1) m away.
+    scan = torch.full((1, 1, 8), 10.0)
+    scan[0, 0, 5] = 2.0
+    ids = torch.full((1, 1, 8), -1)
+    ids[0, 0, 5] = 0
+    view = nearest_hits(scan, ids, torch.zeros(1, 1), 1, rings=(0.0, math.pi / 6))
+    torch.testing.assert_close(view.offset[0, 0, 0], torch.tensor([0.0, math.sqrt(3), 1.0]), atol=1e-6, rtol=0)
+    torch.testing.assert_close(view.normal[0, 0, 0], -torch.tensor([0.0, math.sqrt(3), 1.0]) / 2, atol=1e-6, rtol=0)
+    # A UAV 1 m straight above another, both climbing at 90 deg: each sees the other only if it is
+    # ahead of it; the lower one sees the upper one (on axis), and is pushed down by it.
+    position = torch.tensor([[[0.0, 0.0, 10.0], [0.0, 0.0, 11.0]]])
+    seen = neighbour_view(position, torch.zeros(1, 2, 3), torch.zeros(1, 2), 5.0, math.pi / 4,
+                          climb=torch.full((1, 2), math.pi / 2))
+    assert seen.visible[0].tolist() == [[False, True], [False, False]]
+    push = op_repulsion(seen.offset, seen.distance, seen.visible, 1.0, 5.0)
+    torch.testing.assert_close(push[0, 0], torch.tensor([0.0, 0.0, -4.0]))
+
+
+def test_a_3d_episode_renders_as_top_and_side_views_and_a_gif(tmp_path):
+    from flock_torchrl.report.figures import save_animation
+
+    env = FlockingEnv("wall3d", num_envs=1, seed=0, extras="physics")
+    env.reset()
+    img = env.render(size=(200, 400))
+    assert img.shape == (200, 400, 3) and img.dtype == np.uint8
+    red = (img[..., 0] > 180) & (img[..., 1] < 120) & (img[..., 2] < 120)
+    assert red[:, :200].any() and red[:, 220:].any()  # the wall in the top view and in the side view
+    td = env.rollout(12, break_when_any_done=False)
+    gif = save_animation(td, env, tmp_path / "wall3d.gif", size=(100, 200), stride=4)
+    frames = imageio.mimread(gif)
+    assert len(frames) == 4 and frames[0].shape[:2] == (100, 200)
+
+
+def test_the_3d_benchmark_rows_run():
+    """The rows `make benchmark` prints for the 3-D step (figures are read there, never asserted)."""
+    from benchmarks.threed import threed_lines
+
+    lines = threed_lines(batch=4, n_uavs=5, rounds=1, compiled=False, steps=1, print_each=False)
+    assert len(lines) == 3 and all("us per UAV-step" in line for line in lines)
+    assert "1.00x the 2-D step" in lines[0]
