@@ -368,3 +368,37 @@ def test_the_3d_benchmark_rows_run():
     lines = threed_lines(batch=4, n_uavs=5, rounds=1, compiled=False, steps=1, print_each=False)
     assert len(lines) == 3 and all("us per UAV-step" in line for line in lines)
     assert "1.00x the 2-D step" in lines[0]
+
+
+# ---------------------------------------------------------------------------- learning in space, through the apps
+TINY_3D = ("experiment=tiny", "scenario=train3d", "algo.target_entropy=-3.0", "experiment.max_frames=64",
+           "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false")
+
+
+def test_policy3_g_trains_in_space_through_the_train_app(tmp_path):
+    from helpers import run_script
+
+    from flock_torchrl import load_policy
+    from flock_torchrl.world.env import FlockingEnv as Env
+
+    run = tmp_path / "run"
+    run_script("train.py", *TINY_3D, f"hydra.run.dir={run}", cwd=tmp_path)
+    policy = load_policy(run / "last.pt")
+    assert policy.dims == 3 and policy.flock_meta["scenario"]["dims"] == 3
+    env = Env("wall3d", num_envs=2, seed=0, reading=policy.flock_meta["reading"], policy_id="policy3_g")
+    td = env.rollout(5, policy=policy)
+    assert td["agents", "action"].shape[-1] == 3
+
+
+@pytest.mark.slow
+def test_a_3d_checkpoint_evaluates_on_3d_scenarios_and_is_refused_on_2d_ones(tmp_path):
+    from helpers import run_script
+
+    run = tmp_path / "run"
+    run_script("train.py", *TINY_3D, f"hydra.run.dir={run}", cwd=tmp_path)
+    proc = run_script("evaluate.py", f"checkpoint={run / 'last.pt'}", "scenario=forest3d", "episodes=2", "max_steps=10",
+                      f"hydra.run.dir={tmp_path / 'eval'}", cwd=tmp_path)
+    assert (tmp_path / "eval" / "summary.json").is_file(), proc.stdout
+    proc = run_script("evaluate.py", f"checkpoint={run / 'last.pt'}", "scenario=train", "episodes=2", "max_steps=10",
+                      f"hydra.run.dir={tmp_path / 'eval2d'}", cwd=tmp_path, check=False)
+    assert proc.returncode != 0 and "scenario.dims" in proc.stdout + proc.stderr
