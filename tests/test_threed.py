@@ -402,3 +402,30 @@ def test_a_3d_checkpoint_evaluates_on_3d_scenarios_and_is_refused_on_2d_ones(tmp
     proc = run_script("evaluate.py", f"checkpoint={run / 'last.pt'}", "scenario=train", "episodes=2", "max_steps=10",
                       f"hydra.run.dir={tmp_path / 'eval2d'}", cwd=tmp_path, check=False)
     assert proc.returncode != 0 and "scenario.dims" in proc.stdout + proc.stderr
+
+
+def test_the_3d_table_pools_seeds_by_hand(tmp_path):
+    import json
+
+    from flock_torchrl.report.threed import cells, write_table
+
+    def summary(policy, scenario, success, d_min_uav, std=0.1):
+        values = {"success_rate": success, "safe_success_rate": success, "d_min_uav": d_min_uav,
+                  "d_min_uav_std": std, "t_goal": None}
+        return {"policy": policy, "scenario": scenario, "n_episodes": 10, "summary": values}
+
+    runs = [summary("Policy3-G", "wall3d", 0.2, 1.0), summary("Policy3-G", "wall3d", 0.4, 2.0),
+            summary("Policy-OP", "wall3d", 0.0, 1.5)]
+    rows = {r["policy"]: r for r in cells(runs)}
+    # Two seeds: mean 0.3 and 1.5, spread over seeds sqrt(((0.1)^2 + (0.1)^2) / 1) and sqrt(0.5).
+    assert rows["Policy3-G"]["success_rate"] == pytest.approx(0.3)
+    assert rows["Policy3-G"]["success_rate_spread"] == pytest.approx(math.sqrt(0.02))
+    assert rows["Policy3-G"]["d_min_uav_spread"] == pytest.approx(math.sqrt(0.5))
+    assert rows["Policy3-G"]["seeds"] == 2 and rows["Policy3-G"]["episodes"] == 20
+    # One seed: its episodes' standard deviation, marked.
+    assert rows["Policy-OP"]["d_min_uav_spread"] == pytest.approx(0.1) and rows["Policy-OP"]["d_min_uav_over"] == "episodes"
+    for i, run in enumerate(runs):
+        (tmp_path / str(i)).mkdir()
+        (tmp_path / str(i) / "summary.json").write_text(json.dumps(run))
+    text = write_table(tmp_path).read_text()
+    assert "| wall3d | Policy3-G | 2 | 20 | 30.0 % ± 14.1 |" in text and "1.500 ± 0.100 e" in text
