@@ -226,7 +226,8 @@ tune-baselines: $(STAMP)
 # action numbers), seeds THREED_SEEDS, into runs/threed/ (hours: start it deliberately).
 # table3-3d: each of those seeds and the two baselines on train3d, forest3d and wall3d,
 # THREED_EPISODES episodes each (scripts/evaluate.py), into outputs/threed/<reading>/, then their
-# table in the form of Table III, outputs/threed/<reading>/table3_3d.md (flock_torchrl/report/threed.py).
+# table in the form of Table III, outputs/threed/<reading>/table3_3d.md, and one seeded episode of
+# Policy-OP and of Policy3-G's first seed on each as a GIF of a top and a side view (flock_torchrl/report/threed.py).
 THREED_SEEDS ?= 0,1,2
 THREED_EPISODES ?= 500
 THREED_RUNS ?= runs/threed
@@ -246,6 +247,9 @@ table3-3d: $(STAMP)
 		scripts/evaluate.py policy=$$pol scenario=$$sc episodes=$(THREED_EPISODES) reading=$(CHECK_READING) \
 		hydra.run.dir=$(THREED_OUT)/$$pol/rule/$$sc; done; done
 	$(PYTHON) -c "from flock_torchrl.report.threed import write_table; print(open(write_table('$(THREED_OUT)')).read())"
+	$(PYTHON) -c "import glob; from flock_torchrl.report.threed import episode_gifs; \
+		seeds = sorted(glob.glob('$(THREED_RUNS)/fast/$(CHECK_READING)/policy3_g/seed*/last.pt'))[:1]; \
+		[print(p) for x in ['policy_op', *seeds] for p in episode_gifs('$(THREED_OUT)', x, reading='$(CHECK_READING)')]"
 
 benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"

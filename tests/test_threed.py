@@ -28,6 +28,8 @@ SCENARIOS = ["train", "s1", "s2", "s3", "s4", "s5"]
 
 
 def _pair(scenario: str, reading: str, policy: str, num_envs: int, compile_step: bool = False):
+    if compile_step:  # a fresh compiler per case: one process compiles the step for many worlds
+        torch.compiler.reset()
     kwargs = dict(num_envs=num_envs, seed=3, reading=reading, policy_id=policy, extras="all", compile_step=compile_step)
     return FlockingEnv(scenario, **kwargs), FlockingEnv(scenario, **kwargs, **LIFTED)
 
@@ -138,6 +140,7 @@ def test_the_special_case_holds_compiled_on_every_scenario(scenario, reading):
 
 def test_space_compiled_matches_eager():
     """The compiled 3-D step is the eager one's twin (up to float reordering), in a world that climbs."""
+    torch.compiler.reset()
     kwargs = dict(num_envs=4, seed=0, reading="paper_fit", policy_id="policy3_g", extras="all")
     eager = FlockingEnv("train3d", **kwargs)
     compiled = FlockingEnv("train3d", **kwargs, compile_step=True)
@@ -429,3 +432,11 @@ def test_the_3d_table_pools_seeds_by_hand(tmp_path):
         (tmp_path / str(i) / "summary.json").write_text(json.dumps(run))
     text = write_table(tmp_path).read_text()
     assert "| wall3d | Policy3-G | 2 | 20 | 30.0 % ± 14.1 |" in text and "1.500 ± 0.100 e" in text
+
+
+def test_episode_gifs_of_a_3d_scenario(tmp_path):
+    from flock_torchrl.report.threed import episode_gifs
+
+    (gif,) = episode_gifs(tmp_path, "policy_op", ("wall3d",), size=(100, 200), stride=100)
+    frames = imageio.mimread(gif)
+    assert gif.name == "wall3d_policy_op.gif" and len(frames) >= 2 and frames[0].shape[:2] == (100, 200)

@@ -97,4 +97,27 @@ def write_table(folder: str | os.PathLike) -> Path:
     return out / "table3_3d.md"
 
 
-__all__ = ["COLUMNS", "cells", "collect", "markdown", "write_table"]
+def episode_gifs(folder: str | os.PathLike, policy: str = "policy_op", scenarios: Iterable[str] = ("train3d",
+                 "forest3d", "wall3d"), reading: str = "paper_fit", seed: int = 2024, size: tuple[int, int] = (300, 600),
+                 stride: int = 5) -> list[Path]:
+    """One seeded episode of ``policy`` (a policy's name, or a checkpoint) on each 3-D scenario,
+    drawn as a top and a side view, as ``<folder>/<scenario>_<policy>.gif`` (figures.save_animation)."""
+    import torch
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from ..policies.registry import resolve
+    from ..run.rollout import policy_env
+    from .figures import save_animation
+
+    handle = resolve(policy, reading)[0]
+    paths = []
+    for scenario in scenarios:
+        env = policy_env(handle, scenario, reading, 1, seed, extras=("physics", "laser"))
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            rollout = env.rollout(env.cfg.max_steps, policy=handle.build(env))
+        name = Path(str(policy)).parent.parent.name if str(policy).endswith(".pt") else str(policy)
+        paths.append(save_animation(rollout, env, Path(folder) / f"{scenario}_{name}.gif", size=size, stride=stride))
+    return paths
+
+
+__all__ = ["COLUMNS", "cells", "collect", "episode_gifs", "markdown", "write_table"]
