@@ -52,8 +52,9 @@ class FlockingEnv(EnvBase):
     Args:
         scenario: a :class:`~flock_torchrl.config.ScenarioConfig` (checked here unless it is
             already: ``scenario_config(...)`` and the apps hand over checked ones), or a name under
-            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``), composed with
-            ``reading``, ``policy_id`` and ``overrides`` by :func:`flock_torchrl.config.scenario_config`.
+            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``; in 3-D ``train3d``,
+            ``forest3d``, ``wall3d``), composed with ``reading``, ``policy_id`` and ``overrides`` by
+            :func:`flock_torchrl.config.scenario_config`.
         num_envs: batch size ``B``.
         device: torch device of every tensor.
         seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles).
