@@ -427,7 +427,8 @@ def test_the_3d_table_pools_seeds_by_hand(tmp_path):
     assert rows["Policy3-G"]["d_min_uav_spread"] == pytest.approx(math.sqrt(0.5))
     assert rows["Policy3-G"]["seeds"] == 2 and rows["Policy3-G"]["episodes"] == 20
     # One seed: its episodes' standard deviation, marked.
-    assert rows["Policy-OP"]["d_min_uav_spread"] == pytest.approx(0.1) and rows["Policy-OP"]["d_min_uav_over"] == "episodes"
+    assert rows["Policy-OP"]["d_min_uav_spread"] == pytest.approx(0.1)
+    assert rows["Policy-OP"]["d_min_uav_over"] == "episodes"
     for i, run in enumerate(runs):
         (tmp_path / str(i)).mkdir()
         (tmp_path / str(i) / "summary.json").write_text(json.dumps(run))

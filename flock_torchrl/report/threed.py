@@ -97,9 +97,9 @@ def write_table(folder: str | os.PathLike) -> Path:
     return out / "table3_3d.md"
 
 
-def episode_gifs(folder: str | os.PathLike, policy: str = "policy_op", scenarios: Iterable[str] = ("train3d",
-                 "forest3d", "wall3d"), reading: str = "paper_fit", seed: int = 2024, size: tuple[int, int] = (300, 600),
-                 stride: int = 5) -> list[Path]:
+def episode_gifs(folder: str | os.PathLike, policy: str = "policy_op",
+                 scenarios: Iterable[str] = ("train3d", "forest3d", "wall3d"), reading: str = "paper_fit",
+                 seed: int = 2024, size: tuple[int, int] = (300, 600), stride: int = 5) -> list[Path]:
     """One seeded episode of ``policy`` (a policy's name, or a checkpoint) on each 3-D scenario,
     drawn as a top and a side view, as ``<folder>/<scenario>_<policy>.gif`` (figures.save_animation)."""
     import torch
