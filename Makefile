@@ -14,7 +14,7 @@ EPISODES ?= 500
 .PHONY: install test test-all demo readme-demo docs train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
         reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-tables publish-paper-recipe \
         publish-scaling publish-claims tune-baselines \
-        benchmark scaling clean
+        benchmark scaling train-3d table3-3d clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -233,6 +233,36 @@ tune-baselines: $(STAMP)
 
 # Throughput ratios against baselines run in the same process (VmasEnv needs the bench extra);
 # benchmarks/ is a tool of the repository, not of the installed package. ARGS: e.g. quick=true.
+# Three dimensions (docs/specification.md section 11). train-3d: Policy3-G and its no-instinct twin
+# Policy2-G trained on train3d (experiment=fast; SAC's target entropy -3, the paper's -|A| for three
+# action numbers), seeds THREED_SEEDS, into runs/threed/ (hours: start it deliberately).
+# table3-3d: each of those seeds and the two baselines on train3d, forest3d and wall3d,
+# THREED_EPISODES episodes each (scripts/evaluate.py), into outputs/threed/<reading>/, then their
+# table in the form of Table III, outputs/threed/<reading>/table3_3d.md, and one seeded episode of
+# Policy-OP and of Policy3-G's first seed on each as a GIF of a top and a side view (flock_torchrl/report/threed.py).
+THREED_SEEDS ?= 0,1,2
+THREED_EPISODES ?= 500
+THREED_RUNS ?= runs/threed
+THREED_OUT ?= outputs/threed/$(CHECK_READING)
+THREED_SCENARIOS := train3d forest3d wall3d
+train-3d: $(STAMP)
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast scenario=train3d \
+		algo.target_entropy=-3.0 progress=false resume=auto seed=$(THREED_SEEDS) policy=policy3_g,policy2_g \
+		reading=$(CHECK_READING) hydra.sweep.dir=$(THREED_RUNS)
+
+table3-3d: $(STAMP)
+	set -e; for ckpt in $(THREED_RUNS)/fast/$(CHECK_READING)/*/seed*/last.pt; do \
+		pol=$$(basename $$(dirname $$(dirname $$ckpt))); seed=$$(basename $$(dirname $$ckpt) | cut -d_ -f1); \
+		for sc in $(THREED_SCENARIOS); do OMP_NUM_THREADS=1 $(PYTHON) scripts/evaluate.py checkpoint=$$ckpt \
+			scenario=$$sc episodes=$(THREED_EPISODES) hydra.run.dir=$(THREED_OUT)/$$pol/$$seed/$$sc; done; done
+	set -e; for pol in policy_ma policy_op; do for sc in $(THREED_SCENARIOS); do OMP_NUM_THREADS=1 $(PYTHON) \
+		scripts/evaluate.py policy=$$pol scenario=$$sc episodes=$(THREED_EPISODES) reading=$(CHECK_READING) \
+		hydra.run.dir=$(THREED_OUT)/$$pol/rule/$$sc; done; done
+	$(PYTHON) -c "from flock_torchrl.report.threed import write_table; print(open(write_table('$(THREED_OUT)')).read())"
+	$(PYTHON) -c "import glob; from flock_torchrl.report.threed import episode_gifs; \
+		seeds = sorted(glob.glob('$(THREED_RUNS)/fast/$(CHECK_READING)/policy3_g/seed*/last.pt'))[:1]; \
+		[print(p) for x in ['policy_op', *seeds] for p in episode_gifs('$(THREED_OUT)', x, reading='$(CHECK_READING)')]"
+
 benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"
 	OMP_NUM_THREADS=1 $(PYTHON) -m benchmarks.run $(ARGS)

@@ -41,6 +41,7 @@ from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
 from benchmarks.population import population_lines
 from benchmarks.reset import reset_lines
+from benchmarks.threed import threed_lines
 from benchmarks.timing import paired
 
 
@@ -339,6 +340,9 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     text += "\n" + "\n".join(population_lines(frames=400 if cfg.quick else 3000, print_each=False))
     # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
     text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
+    # The 3-D step against the 2-D one, per UAV-step (benchmarks/threed.py).
+    text += "\n" + "\n".join(threed_lines(batch=64 if cfg.quick else 1024, rounds=1 if cfg.quick else 3,
+                                           compiled=not cfg.quick, print_each=False))
     print(text, flush=True)
     write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
 

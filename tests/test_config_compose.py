@@ -229,6 +229,12 @@ def test_every_train_composition_keeps_the_values_main_composed(every):
         assert tree["scenario"].pop("cohesion_range") == "paper", name
         assert tree["scenario"].pop("collision_shape") == "paper", name
         assert tree["scenario"].pop("actor_camera") == "paper", name
+        # ... and the third dimension (docs/specification.md section 11): the plane, Eq. 30's full circle.
+        assert tree["scenario"].pop("dims") == 2, name
+        assert tree["scenario"].pop("chi_range") == [-math.pi, math.pi], name
+        for key in ("climb_max", "altitude", "laser_rings", "spawn_altitude", "spawn_height", "goal_altitude",
+                    "spheres", "random_heights", "random_spheres", "random_sphere_altitude"):
+            tree["scenario"].pop(key)
         assert set(tree) == set(entry), name
         for key, digest in entry.items():
             assert tree[key] == nodes[digest], f"{name}: {key}"

@@ -300,9 +300,9 @@ def test_world_state_follows_its_declaration(make_env):
     assert (env.obs_dim, env.state_dim) == (observation_size(env.cfg), state_size(env.cfg)) == (17, 20)
     wider = dataclasses.replace(env.cfg, n_scan=2, n_cam=4)
     assert (observation_size(wider), state_size(wider)) == (2 + 2 * 2 + 3 * 4, 2 + 2 * 2 + 3 * 4 + 3)
-    expected = {"position": (3, 5, 2), "velocity": (3, 5, 2), "heading": (3, 5), "goal": (3, 2),
+    expected = {"position": (3, 5, 2), "velocity": (3, 5, 2), "heading": (3, 5), "climb": (3, 0), "goal": (3, 2),
                 "moving_position": (3, 2, 2), "moving_velocity": (3, 2, 2), "drawn_circles": (3, 0, 3),
-                "drawn_rectangles": (3, 0, 4), "command": (3, 5, 2),
+                "drawn_rectangles": (3, 0, 4), "drawn_spheres": (3, 0, 4), "command": (3, 5, 2),
                 "instinct": (3, 5), "prev_action": (3, 5, 2), "has_prev_action": (3,), "terminated": (3, 1),
                 "truncated": (3, 1)}
     assert list(WORLD_STATE) == list(expected)

@@ -30,6 +30,7 @@ class ScenarioConfig(Schema):
 
     name: str = MISSING
     reading: str = MISSING                   # literal | paper_fit (section 9)
+    dims: int = MISSING                      # 2 | 3: the plane (sections 1-10) or space (section 11)
     # --- world (section 1)
     n_uavs: int = MISSING
     dt: float = MISSING
@@ -96,6 +97,18 @@ class ScenarioConfig(Schema):
     random_rectangle_size: List[float] = MISSING  # [min, max] of each side
     random_region: List[float] = MISSING     # [x0, y0, x1, y1]
     random_clearance: float = MISSING        # m between drawn obstacles, and from starts, goal, other obstacles
+    # --- three dimensions (section 11; read only with dims: 3)
+    climb_max: float = MISSING               # rad, gamma_max: |flight-path angle| commanded (0: climb disabled)
+    altitude: List[float] = MISSING          # m, [ground, ceiling]: the altitude is clamped into it
+    laser_rings: List[float] = MISSING       # rad, elevations of the laser's rings of n_beams beams
+    spawn_altitude: List[float] = MISSING    # m, [min, max] of the swarm centre's altitude at spawn
+    spawn_height: float = MISSING            # m, vertical spread of the starts about that altitude
+    goal_altitude: List[float] = MISSING     # m, [min, max] of the goal's altitude
+    chi_range: List[float] = MISSING         # rad, Eq. 30's chi ~ U[min, max) (both dims)
+    spheres: List[Any] = MISSING             # [cx, cy, cz, radius]
+    random_heights: List[float] = MISSING    # m, [min, max] top of each drawn cylinder and box
+    random_spheres: int = MISSING            # the last this many drawn circles are spheres
+    random_sphere_altitude: List[float] = MISSING  # m, [min, max] of a drawn sphere's centre altitude
     # --- observation noise (S4)
     noise: bool = MISSING
     noise_scan: float = MISSING
@@ -119,9 +132,50 @@ class ScenarioConfig(Schema):
     @property
     def n_obstacles(self) -> int:
         """Obstacles in every world, the laser's indices: fixed, moving and drawn circles, then
-        fixed and drawn rectangles."""
+        fixed and drawn rectangles (then, in 3-D, fixed and drawn spheres)."""
         return (len(self.circles) + self.n_moving + self.random_circles + len(self.rectangles)
-                + self.random_rectangles)
+                + self.random_rectangles + (len(self.spheres) if self.dims == 3 else 0))
+
+    # Shapes that follow the dimension (section 11); in 2-D each is what it always was.
+    @property
+    def circle_size(self) -> int:
+        """Numbers per circle: ``[cx, cy, r]``, in 3-D ``[cx, cy, r, z_low, z_high]``."""
+        return 5 if self.dims == 3 else 3
+
+    @property
+    def rectangle_size(self) -> int:
+        """Numbers per rectangle: ``[cx, cy, w, h]``, in 3-D ``[cx, cy, w, h, z_low, z_high]``."""
+        return 6 if self.dims == 3 else 4
+
+    @property
+    def n_climb(self) -> int:
+        """Flight-path angles per world: one per UAV in 3-D, none in 2-D."""
+        return self.n_uavs if self.dims == 3 else 0
+
+    @property
+    def drawn_spheres(self) -> int:
+        """Drawn spheres per episode (3-D only): the last ``random_spheres`` drawn circles."""
+        return self.random_spheres if self.dims == 3 else 0
+
+    @property
+    def drawn_cylinders(self) -> int:
+        """Drawn circles that stay circles (cylinders in 3-D)."""
+        return self.random_circles - self.drawn_spheres
+
+    @property
+    def n_rings(self) -> int:
+        """Laser rings: one in 2-D."""
+        return len(self.laser_rings) if self.dims == 3 else 1
+
+    @property
+    def n_laser(self) -> int:
+        """Laser beams in all: ``n_beams`` per ring."""
+        return self.n_beams * self.n_rings
+
+    @property
+    def rings(self) -> tuple[float, ...] | None:
+        """The rings' elevations in 3-D (the sensors' switch to 3-D), ``None`` in 2-D."""
+        return tuple(float(e) for e in self.laser_rings) if self.dims == 3 else None
 
     def checked_fields(self, prefix: str) -> dict[str, Any]:
         """Every field's range; whether the starts can always be placed is the world's question
@@ -129,6 +183,8 @@ class ScenarioConfig(Schema):
         obstacle lists come back as lists of floats."""
         k = lambda name: dotted(prefix, name)  # noqa: E731
         choice(k("reading"), self.reading, READINGS)
+        if self.dims not in (2, 3) or isinstance(self.dims, bool):
+            reject(k("dims"), f"must be 2 or 3, got {self.dims!r}")
         # Bounds keep a config from asking for more than any machine holds (the world's
         # [B, N, N] pairwise terms, the episode loop): far above every use, well below overflow.
         count(k("n_uavs"), self.n_uavs, 1, MAX_UAVS)
@@ -163,15 +219,21 @@ class ScenarioConfig(Schema):
         if len(self.area_center) != 2 or not all(is_number(v) for v in self.area_center):
             reject(k("area_center"), f"must be [x, y], got {list(self.area_center)}")
         lists: dict[str, list[list[float]]] = {}
+        three = self.dims == 3
         for name, size, shape in (("circles", 3, "[cx, cy, radius > 0]"),
                                   ("rectangles", 4, "[cx, cy, width > 0, height > 0]")):
             entries = getattr(self, name)
             for i, entry in enumerate(entries):
-                ok = isinstance(entry, (list, tuple)) and len(entry) == size and all(is_number(v) for v in entry)
-                if not ok or not all(v > 0 for v in entry[2:]):
-                    reject(k(name), f"entry {i} must be {shape}, got {entry!r}")
-            lists[name] = [[float(v) for v in entry] for entry in entries]
-        circles, rectangles = lists["circles"], lists["rectangles"]
+                sizes = (size, size + 2) if three else (size,)
+                ok = isinstance(entry, (list, tuple)) and len(entry) in sizes and all(is_number(v) for v in entry)
+                if not ok or not all(v > 0 for v in entry[2:size]) or (len(entry) > size and entry[-2] >= entry[-1]):
+                    more = f" or {shape[:-1]}, z_low < z_high] (3-D)" if three else ""
+                    reject(k(name), f"entry {i} must be {shape}{more}, got {entry!r}")
+            # In 3-D a 2-D entry is unbounded in height (section 11): [-FULL_HEIGHT, FULL_HEIGHT].
+            lists[name] = [[float(v) for v in entry] + ([-FULL_HEIGHT, FULL_HEIGHT] if three and len(entry) == size
+                                                         else []) for entry in entries]
+        circles, rectangles = [c[:3] for c in lists["circles"]], [r[:4] for r in lists["rectangles"]]
+        self._check_three_d(k, lists)
         for i, a in enumerate(circles):
             for j, b in enumerate(circles[i + 1:], i + 1):
                 if math.hypot(a[0] - b[0], a[1] - b[1]) < a[2] + b[2]:
@@ -189,6 +251,51 @@ class ScenarioConfig(Schema):
                 reject(k("moving_box"), f"must be [low, high] with low < high, got {list(self.moving_box)}")
         self._check_random_obstacles(k)
         return lists
+
+    def _check_three_d(self, k: Any, lists: dict[str, list[list[float]]]) -> None:
+        """Section 11's fields (always, so a typo shows before ``dims: 3`` makes it matter);
+        ``lists`` gains the checked ``spheres``."""
+        def pair(name: str, low: float = -1e6, high: float = 1e6) -> list[float]:
+            value = list(getattr(self, name))
+            if not (len(value) == 2 and all(is_number(v) and low <= v <= high for v in value) and value[0] <= value[1]):
+                reject(k(name), f"must be [min, max] with {low:g} <= min <= max <= {high:g}, got {value}")
+            return [float(v) for v in value]
+
+        non_negative(k("climb_max"), self.climb_max, math.pi / 2 - 1e-3)
+        non_negative(k("spawn_height"), self.spawn_height, 1e6)
+        ground, ceiling = pair("altitude")
+        if not ground < ceiling:
+            reject(k("altitude"), f"must be [ground, ceiling] with ground < ceiling, got {list(self.altitude)}")
+        for name in ("spawn_altitude", "goal_altitude"):
+            low, high = pair(name)
+            if self.dims == 3 and not (ground <= low and high <= ceiling):
+                reject(k(name), f"{[low, high]} must lie within altitude {[ground, ceiling]}")
+        low, high = pair("spawn_altitude")
+        if self.dims == 3 and not (ground <= low - self.spawn_height / 2 and high + self.spawn_height / 2 <= ceiling):
+            reject(k("spawn_height"), f"starts spread {self.spawn_height:g} m about {[low, high]} leave altitude "
+                                      f"{[ground, ceiling]}")
+        pair("chi_range", -math.pi - 1e-9, math.pi + 1e-9)
+        heights = pair("random_heights", 0.0)
+        if self.dims == 3 and heights[0] <= ground and (self.random_circles > self.random_spheres
+                                                        or self.random_rectangles):
+            reject(k("random_heights"), f"drawn obstacles rise from the ground ({ground:g} m): their tops "
+                                        f"{heights} must lie above it")
+        pair("random_sphere_altitude")
+        rings = list(self.laser_rings)
+        if not (1 <= len(rings) <= 36 and all(is_number(e) and abs(e) < math.pi / 2 - 1e-3 for e in rings)):
+            reject(k("laser_rings"), f"must be 1 to 36 elevations strictly inside (-pi/2, pi/2) rad, got {rings}")
+        count(k("random_spheres"), self.random_spheres, 0, 1000)
+        if isinstance(self.random_circles, int) and 0 <= self.random_circles < self.random_spheres:
+            reject(k("random_spheres"), f"counts the last drawn circles that are spheres: at most random_circles="
+                                        f"{self.random_circles}, got {self.random_spheres}")
+        spheres = list(self.spheres)
+        for i, entry in enumerate(spheres):
+            if not (isinstance(entry, (list, tuple)) and len(entry) == 4 and all(is_number(v) for v in entry)
+                    and entry[3] > 0):
+                reject(k("spheres"), f"entry {i} must be [cx, cy, cz, radius > 0], got {entry!r}")
+        if spheres and self.dims != 3:
+            reject(k("spheres"), "spheres need dims: 3")
+        lists["spheres"] = [[float(v) for v in entry] for entry in spheres]
 
     def _check_random_obstacles(self, k: Any) -> None:
         """The drawn obstacles' fields (always, so a typo shows before a count makes it matter);
@@ -233,6 +340,9 @@ SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
                           "cohesion_range", "collision_shape", "actor_camera", "action_mode")
 READINGS = ("literal", "paper_fit")
+# Half the height (m) of an obstacle "unbounded in height" in 3-D (section 11): a 2-D circle or
+# rectangle is a prism from -FULL_HEIGHT to FULL_HEIGHT, beyond every altitude a config allows.
+FULL_HEIGHT = 1e6
 # How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
 # ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
 # that hold in a crowd (docs/specification.md section 3; docs/scaling_diagnosis.md measured them).
@@ -253,4 +363,5 @@ ACTOR_CAMERAS = ("paper", "all_round")
 
 
 __all__ = ["ACTOR_CAMERAS", "COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS",
+           "FULL_HEIGHT",
            "SCENARIO_FIELDS", "ScenarioConfig"]

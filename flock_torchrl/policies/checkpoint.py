@@ -203,9 +203,11 @@ class SharedPolicy(TensorDictModuleBase):
             raise CheckpointError(f"{origin}: meta.scenario is not a scenario ({' '.join(str(exc).split())})"
                                   ) from None
         # Sized from what the checkpoint stores (no world is built): the observation of its
-        # scenario, the action box of its action mode (the policy's [-1, 1]^2, or velocities).
+        # scenario, the action box of its action mode (the policy's [-1, 1]^2, or velocities;
+        # [-1, 1]^3 in a 3-D world, docs/specification.md section 11).
         limit = 1.0 if scenario.action_mode == "policy" else float(scenario.v_max)
-        box = torch.full((2,), limit, device=device)
+        self.dims = scenario.dims
+        box = torch.full((scenario.dims,), limit, device=device)
         self.actor = actor_of_sizes(observation_size(scenario), -box, box, device=device, stochastic=meta["stochastic"],
                                     hidden=meta["hidden"], depth=meta["depth"])
         expected = self.actor.state_dict()

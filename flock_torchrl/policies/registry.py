@@ -104,7 +104,16 @@ def checkpoint_handle(path: str | os.PathLike, device: str = "cpu") -> PolicyHan
     return PolicyHandle(
         id=meta["policy_id"], name=meta["policy"], kind="learned", reading=meta["reading"],
         scenario=dict(meta["policy_scenario"]), extras=(), origin=str(resolve_path(path)),
-        build_for=lambda env: module, seed=meta.get("seed"))
+        build_for=lambda env: same_dims(module, env, str(resolve_path(path))), seed=meta.get("seed"))
+
+
+def same_dims(module: Any, env: Any, origin: str) -> Any:
+    """``module``, if it was trained in ``env``'s dimension (docs/specification.md section 11);
+    else a :class:`ConfigError` naming ``scenario.dims``."""
+    if module.dims != env.cfg.dims:
+        raise ConfigError("scenario.dims", f"is {env.cfg.dims} here, but {origin} was trained in a world with dims "
+                                           f"{module.dims}: evaluate it on a {module.dims}-D scenario")
+    return module
 
 
 def rule_handle(policy: PolicyConfig, scenario: Mapping[str, Any]) -> PolicyHandle:

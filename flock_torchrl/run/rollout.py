@@ -69,12 +69,13 @@ ACTION = ("agents", "action")
 
 class CheckedContender:
     """A contender's module, its every output checked before the env reads it: a TensorDict
-    holding a finite float ``("agents", "action")`` of shape ``[*batch, N, 2]``. Anything else
+    holding a finite float ``("agents", "action")`` of shape ``[*batch, N, 2]`` (3-D: ``N, 3``). Anything else
     is a :class:`ConfigError` under ``key`` naming the contender, what it returned and at
     which step (the env's own checks would not name it)."""
 
-    def __init__(self, module: Any, name: str, key: str = "contenders") -> None:
+    def __init__(self, module: Any, name: str, key: str = "contenders", dims: int = 2) -> None:
         self.module, self.name, self.key, self.steps = module, name, key, 0
+        self.dims = dims  # the action's numbers: 3 in a 3-D world (docs/specification.md section 11)
 
     def fail(self, what: str) -> None:
         raise ConfigError(self.key, f"{self.name} {what} (at step {self.steps} of its episodes)")
@@ -100,7 +101,7 @@ class CheckedContender:
         if not action.is_floating_point():
             self.fail(f"wrote a {action.dtype} action; actions are float in [-1, 1]")
         n_uavs = td.get(("agents", "observation")).shape[-2]
-        expected = (*td.batch_size, n_uavs, 2)
+        expected = (*td.batch_size, n_uavs, self.dims)
         if tuple(action.shape) != expected:
             self.fail(f"wrote an action of shape {list(action.shape)}; this env needs {list(expected)}")
         finite = torch.isfinite(action)
@@ -118,7 +119,7 @@ def try_contender(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping
     before any row is evaluated: a factory that raises or returns no module, an output the env
     cannot take, the reading of a checkpoint — each is one :class:`ConfigError` naming it."""
     env = policy_env(handle, scenario, reading, num_envs, eval_seed(), device, env_overrides)
-    module = CheckedContender(handle.build(env), handle.name, key)
+    module = CheckedContender(handle.build(env), handle.name, key, env.cfg.dims)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         for _ in range(steps):
@@ -218,7 +219,7 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
     env = policy_env(handle, scenario, reading, n_episodes, seed, device, env_overrides)
     module = handle.build(env)
     if handle.kind == "contender":
-        module = CheckedContender(module, handle.name, contender_key)
+        module = CheckedContender(module, handle.name, contender_key, env.cfg.dims)
     records, steps = run_episodes(env, module, label=f"{handle.name} on {env.cfg.name}", log=log)
     return EvaluationResult(
         policy=handle.name, scenario=env.cfg.name, reading=env.cfg.reading, seed=seed,

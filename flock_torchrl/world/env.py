@@ -17,7 +17,7 @@ from ..config.scenario import ScenarioConfig
 from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
 from .sensors import observation_size, state_size
-from .spawn import check_spawn_feasible, sample_layout
+from .spawn import check_spawn_feasible, sample_layout, static_obstacles
 from .state import (ACTION, STATE_KEYS, check_like, check_seed, check_state, checked_action, empty_state, fill_absent,
                     torch_device)
 from .step import noise_draws, sense, transition, world_obstacles
@@ -52,8 +52,9 @@ class FlockingEnv(EnvBase):
     Args:
         scenario: a :class:`~flock_torchrl.config.ScenarioConfig` (checked here unless it is
             already: ``scenario_config(...)`` and the apps hand over checked ones), or a name under
-            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``), composed with
-            ``reading``, ``policy_id`` and ``overrides`` by :func:`flock_torchrl.config.scenario_config`.
+            ``conf/scenario/`` (``train``, ``s1`` ... ``s5``, ``tau_v``, ``forest``; in 3-D ``train3d``,
+            ``forest3d``, ``wall3d``), composed with ``reading``, ``policy_id`` and ``overrides`` by
+            :func:`flock_torchrl.config.scenario_config`.
         num_envs: batch size ``B``.
         device: torch device of every tensor.
         seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles).
@@ -109,10 +110,7 @@ class FlockingEnv(EnvBase):
         self.obs_dim = observation_size(cfg)
         self.state_dim = state_size(cfg)
         self.group_map = {"agents": [f"agent_{i}" for i in range(cfg.n_uavs)]}
-        self._static = Obstacles(
-            torch.tensor(cfg.circles, dtype=torch.float32, device=self.device).reshape(1, -1, 3),
-            torch.tensor(cfg.rectangles, dtype=torch.float32, device=self.device).reshape(1, -1, 4),
-        )
+        self._static = static_obstacles(cfg, self.device)
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
         self.check_actions = bool(check_actions)
@@ -150,14 +148,17 @@ class FlockingEnv(EnvBase):
             return Categorical(2, shape=(*batch, *shape), dtype=torch.bool, device=dev)
 
         agents = {"observation": box(self.obs_dim), "state": box(self.state_dim)}
+        d = cfg.dims
         if "physics" in self.extras:
-            agents.update(position=free(2), velocity=free(2), heading=free())
+            agents.update(position=free(d), velocity=free(d), heading=free())
+            if d == 3:
+                agents.update(climb=free())
         if "command" in self.extras:
-            agents.update(command=box(2, low=-cfg.v_max, high=cfg.v_max), instinct=flag())
+            agents.update(command=box(d, low=-cfg.v_max, high=cfg.v_max), instinct=flag())
         if "laser" in self.extras:
-            agents.update(scan=box(cfg.n_beams, low=0.0, high=cfg.laser_range),
+            agents.update(scan=box(cfg.n_laser, low=0.0, high=cfg.laser_range),
                           scan_obstacle=Bounded(low=-1, high=max(cfg.n_obstacles - 1, 0),
-                                                shape=(b, n, cfg.n_beams), dtype=torch.int64, device=dev))
+                                                shape=(b, n, cfg.n_laser), dtype=torch.int64, device=dev))
         episode = Composite(
             {k: (flag(batch=(b,)) if k in FLAG_METRICS else free(batch=(b,), dtype=torch.int64) if k == "steps"
                  else free(batch=(b,))) for k in METRIC_KEYS},
@@ -165,18 +166,20 @@ class FlockingEnv(EnvBase):
         observation = Composite(agents=Composite(agents, shape=(b, n), device=dev), episode=episode, shape=(b,),
                                 device=dev)
         if "physics" in self.extras:
-            observation["goal"] = free(2, batch=(b,))
+            observation["goal"] = free(d, batch=(b,))
             obstacles = {}
             if cfg.n_moving:
                 obstacles["position"] = free(cfg.n_moving, 2, batch=(b,))
-            if cfg.random_circles:
-                obstacles["drawn_circles"] = free(cfg.random_circles, 3, batch=(b,))
+            if cfg.drawn_cylinders:
+                obstacles["drawn_circles"] = free(cfg.drawn_cylinders, cfg.circle_size, batch=(b,))
             if cfg.random_rectangles:
-                obstacles["drawn_rectangles"] = free(cfg.random_rectangles, 4, batch=(b,))
+                obstacles["drawn_rectangles"] = free(cfg.random_rectangles, cfg.rectangle_size, batch=(b,))
+            if cfg.drawn_spheres:
+                obstacles["drawn_spheres"] = free(cfg.drawn_spheres, 4, batch=(b,))
             if obstacles:
                 observation["obstacles"] = Composite(obstacles, shape=(b,), device=dev)
         self.observation_spec = observation
-        action = box(2) if cfg.action_mode == "policy" else box(2, low=-cfg.v_max, high=cfg.v_max)
+        action = box(d) if cfg.action_mode == "policy" else box(d, low=-cfg.v_max, high=cfg.v_max)
         self.action_spec = Composite(agents=Composite(action=action, shape=(b, n), device=dev), shape=(b,), device=dev)
         self.reward_spec = Composite(agents=Composite(reward=free(1), shape=(b, n), device=dev), shape=(b,),
                                      device=dev)
@@ -191,7 +194,7 @@ class FlockingEnv(EnvBase):
         state = empty_state(self.cfg, b, dev)
         world = {**state, "episode": new_accumulator(b, dev)}
         if sensed:
-            n, k = self.cfg.n_uavs, self.cfg.n_beams
+            n, k = self.cfg.n_uavs, self.cfg.n_laser
             normals = None if not self.cfg.noise else {
                 "scan": torch.zeros(b, n, k, device=dev),
                 **{key: torch.zeros(b, n, n, device=dev) for key in ("distance", "bearing", "heading_difference")}}
@@ -217,7 +220,8 @@ class FlockingEnv(EnvBase):
         state = empty_state(self.cfg, count, dev)
         state.update(position=layout.position, heading=layout.heading, goal=layout.goal,
                      moving_position=layout.moving_position, moving_velocity=layout.moving_velocity,
-                     drawn_circles=layout.drawn_circles, drawn_rectangles=layout.drawn_rectangles)
+                     drawn_circles=layout.drawn_circles, drawn_rectangles=layout.drawn_rectangles,
+                     drawn_spheres=layout.drawn_spheres)
         sensed = sense(state, self._static, self.cfg, self._draw_noise(index))
         return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
                           batch_size=[count], device=dev)
@@ -236,6 +240,8 @@ class FlockingEnv(EnvBase):
             agents["reward"] = reward[..., None]
         if "physics" in extras:
             agents.update(position=world["position"], velocity=world["velocity"], heading=world["heading"])
+            if self.cfg.dims == 3:
+                agents["climb"] = world["climb"]
         if "command" in extras:
             agents.update(command=world["command"], instinct=world["instinct"])
         if "laser" in extras:
@@ -260,8 +266,9 @@ class FlockingEnv(EnvBase):
         and the drawn obstacles, each only where the scenario has them."""
         cfg, world = self.cfg, self.world
         entries = {"position": ("moving_position", cfg.n_moving),
-                   "drawn_circles": ("drawn_circles", cfg.random_circles),
-                   "drawn_rectangles": ("drawn_rectangles", cfg.random_rectangles)}
+                   "drawn_circles": ("drawn_circles", cfg.drawn_cylinders),
+                   "drawn_rectangles": ("drawn_rectangles", cfg.random_rectangles),
+                   "drawn_spheres": ("drawn_spheres", cfg.drawn_spheres)}
         return {name: world[key] for name, (key, count) in entries.items() if count}
 
     # ------------------------------------------------------------------ TorchRL API
@@ -377,7 +384,7 @@ class FlockingEnv(EnvBase):
                  "moving_position": moving_position, "drawn_circles": drawn_circles,
                  "drawn_rectangles": drawn_rectangles}
         state = empty_state(self.cfg, self.num_envs, self.device)
-        kept = ("moving_position", "moving_velocity", "drawn_circles", "drawn_rectangles")
+        kept = ("moving_position", "moving_velocity", "drawn_circles", "drawn_rectangles", "drawn_spheres")
         state.update({key: self.world[key] for key in kept})
         state.update({key: tensor(value) for key, value in given.items() if value is not None})
         check_state(self.cfg, state, self.num_envs, "place", keys=tuple(given))
@@ -453,7 +460,7 @@ class FlockingEnv(EnvBase):
                             f"{sorted(VMAS_RENDER_OPTIONS)}, ignored)")
         options = {k: v for k, v in kwargs.items() if k in FRAME_OPTIONS}
         if agent_index_focus is not None and "extent" not in options:
-            x, y = self.world["position"][env_index, int(agent_index_focus)].tolist()
+            x, y = self.world["position"][env_index, int(agent_index_focus), :2].tolist()
             options["extent"] = (x - 10.0, x + 10.0, y - 10.0, y + 10.0)
         return render_frame(self, env_index=env_index, **options)
 

@@ -253,6 +253,28 @@ def sample_forest(cfg: ScenarioConfig, swarm_centre: torch.Tensor, goal: torch.T
     return split_boxes(boxes, cfg.random_circles)
 
 
+def lift_drawn(cfg: ScenarioConfig, circles: torch.Tensor, rectangles: torch.Tensor, generator: torch.Generator
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The drawn footprints of :func:`sample_forest` as 3-D solids (docs/specification.md section 11):
+    ``(cylinders [B, C - S, 5], boxes [B, R, 6], spheres [B, S, 4])``. Every cylinder and box rises
+    from the ground (``altitude[0]``) to a top uniform in ``random_heights``; the last
+    ``random_spheres`` circles become spheres of their radius, centred at an altitude uniform in
+    ``random_sphere_altitude``. Drawn in that order, after everything else; nothing when the
+    scenario draws no obstacles."""
+    batch, device = circles.shape[0], circles.device
+    n_cyl, n_sph = cfg.drawn_cylinders, cfg.drawn_spheres
+    ground = cfg.altitude[0]
+    if not drawn_count(cfg):
+        return circles.new_zeros(batch, 0, 5), circles.new_zeros(batch, 0, 6), circles.new_zeros(batch, 0, 4)
+    top_c = _uniform((batch, n_cyl, 1), generator, device, *cfg.random_heights)
+    top_r = _uniform((batch, rectangles.shape[1], 1), generator, device, *cfg.random_heights)
+    sphere_z = _uniform((batch, n_sph, 1), generator, device, *cfg.random_sphere_altitude)
+    cylinders = torch.cat((circles[:, :n_cyl], torch.full_like(top_c, ground), top_c), -1)
+    boxes = torch.cat((rectangles, torch.full_like(top_r, ground), top_r), -1)
+    spheres = torch.cat((circles[:, n_cyl:, :2], sphere_z, circles[:, n_cyl:, 2:]), -1)
+    return cylinders, boxes, spheres
+
+
 # ---------------------------------------------------------------------------- config-time check
 def cells_near_a_moving_circle(cfg: ScenarioConfig, steps: int = 32) -> int:
     """The most cells one moving circle can take from the fallback: those closer than
@@ -309,5 +331,5 @@ def check_forest(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, p
                                             "random_circle_radius", "random_rectangle_size")])
 
 
-__all__ = ["SpawnError", "blockers", "box_gap", "cell_boxes", "cell_grid", "check_forest", "drawn_count",
+__all__ = ["SpawnError", "blockers", "box_gap", "cell_boxes", "cell_grid", "check_forest", "drawn_count", "lift_drawn",
            "place_by_rejection", "place_on_cells", "sample_forest"]

@@ -5,6 +5,11 @@ headless and inside tests: fixed, moving and drawn obstacles (red; each world's 
 ``goal_radius``), UAVs as triangles along their heading (blue) and their camera fields of view
 (wedges of radius ``camera_range`` reaching ``half_fov`` either side of the heading). Whole
 episodes and the paper's figures are drawn by :mod:`flock_torchrl.report.figures`.
+
+A 3-D world (docs/specification.md section 11) is drawn as a top view and a side view side by
+side: the top view as above (obstacles by their footprints, spheres as circles), the side view in
+the vertical plane through the area's centre and the goal (altitude against the distance along
+that line; obstacles as their silhouettes, the ground and the ceiling as grey lines).
 """
 
 from __future__ import annotations
@@ -40,6 +45,11 @@ class WorldState:
     moving: np.ndarray
     circles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
     rectangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float32))
+    # 3-D only (section 11): the UAVs' and the goal's altitudes, the drawn spheres; then the drawn
+    # circles and rectangles carry their height range ([C, 5], [R, 6]).
+    altitude: np.ndarray | None = None
+    goal_altitude: float | None = None
+    spheres: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.float32))
 
 
 def _np(x: torch.Tensor) -> np.ndarray:
@@ -49,7 +59,12 @@ def _np(x: torch.Tensor) -> np.ndarray:
 def env_state(env: Any, env_index: int = 0) -> WorldState:
     """The current state of env ``env_index`` of a FlockingEnv."""
     world = env.world[env_index]
-    return WorldState(_np(world["position"]), _np(world["heading"]), _np(world["goal"]),
+    position, goal = _np(world["position"]), _np(world["goal"])
+    if position.shape[-1] == 3:
+        return WorldState(position[:, :2], _np(world["heading"]), goal[:2], _np(world["moving_position"]),
+                          _np(world["drawn_circles"]), _np(world["drawn_rectangles"]), position[:, 2],
+                          float(goal[2]), _np(world["drawn_spheres"]))
+    return WorldState(position, _np(world["heading"]), goal,
                       _np(world["moving_position"]), _np(world["drawn_circles"]), _np(world["drawn_rectangles"]))
 
 
@@ -72,8 +87,12 @@ def rollout_states(rollout: Any, env_index: int = 0) -> list[WorldState]:
     else:
         moving = torch.zeros(position.shape[0], 0, 2)
     # Drawn obstacles stay put for the episode: its first step's.
-    drawn = {name: _np(td["obstacles", f"drawn_{name}"][0]) for name in ("circles", "rectangles")
+    drawn = {name: _np(td["obstacles", f"drawn_{name}"][0]) for name in ("circles", "rectangles", "spheres")
              if ("obstacles", f"drawn_{name}") in keys}
+    if position.shape[-1] == 3:  # 3-D: the top view's positions, and the altitudes apart
+        return [WorldState(_np(position[t, :, :2]), _np(heading[t]), _np(goal[:2]), _np(moving[t]), **drawn,
+                           altitude=_np(position[t, :, 2]), goal_altitude=float(goal[2]))
+                for t in range(position.shape[0])]
     return [WorldState(_np(position[t]), _np(heading[t]), _np(goal), _np(moving[t]), **drawn)
             for t in range(position.shape[0])]
 
@@ -97,10 +116,12 @@ def world_extent(cfg: Any, states: Sequence[WorldState], margin: float = 4.0) ->
 
 # ---------------------------------------------------------------------------- drawing
 def draw_obstacles(ax: Any, circles: Any, rectangles: Any) -> None:
-    """Circles ``[C, 3]`` (cx, cy, r) and axis-aligned rectangles ``[R, 4]`` (cx, cy, w, h), red."""
-    for cx, cy, r in np.asarray(circles, dtype=float).reshape(-1, 3):
+    """Circles ``[C, 3]`` (cx, cy, r) and axis-aligned rectangles ``[R, 4]`` (cx, cy, w, h), red
+    (3-D cylinders ``[C, 5]`` and boxes ``[R, 6]``: their footprints)."""
+    circles, rectangles = np.asarray(circles, dtype=float), np.asarray(rectangles, dtype=float)
+    for cx, cy, r in (circles[:, :3] if circles.ndim == 2 else circles.reshape(-1, 3)):
         ax.add_patch(Circle((cx, cy), r, facecolor=OBSTACLE_COLOR, edgecolor="none", alpha=0.85, zorder=1))
-    for cx, cy, w, h in np.asarray(rectangles, dtype=float).reshape(-1, 4):
+    for cx, cy, w, h in (rectangles[:, :4] if rectangles.ndim == 2 else rectangles.reshape(-1, 4)):
         ax.add_patch(Rectangle((cx - w / 2, cy - h / 2), w, h, facecolor=OBSTACLE_COLOR, edgecolor="none",
                                alpha=0.85, zorder=1))
 
@@ -163,6 +184,9 @@ def draw_world(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float,
     of view, UAVs."""
     draw_static(ax, cfg, state.goal)
     draw_obstacles(ax, state.circles, state.rectangles)
+    spheres = [*getattr(cfg, "spheres", [])] if getattr(cfg, "dims", 2) == 3 else []
+    for cx, cy, _, r in [*spheres, *np.asarray(state.spheres, dtype=float).reshape(-1, 4)]:
+        ax.add_patch(Circle((cx, cy), r, facecolor=OBSTACLE_COLOR, edgecolor="black", lw=0.3, alpha=0.5, zorder=1))
     if state.moving.size:
         draw_moving(ax, cfg, state.moving)
     if show_fov:
@@ -195,10 +219,94 @@ def _to_rgb(canvas: FigureCanvasAgg, height: int, width: int) -> np.ndarray:
     return rgb
 
 
+def side_axis(cfg: Any, state: WorldState) -> np.ndarray:
+    """The side view's horizontal direction: from the area's centre towards the goal (unit, ``[2]``)."""
+    direction = np.asarray(state.goal, dtype=float) - np.asarray(cfg.area_center, dtype=float)
+    norm = float(np.hypot(*direction))
+    return direction / norm if norm > 1e-9 else np.array([1.0, 0.0])
+
+
+def _box_section(centre: np.ndarray, u: np.ndarray, box: Sequence[float]) -> tuple[float, float] | None:
+    """Where the line ``centre + s u`` crosses the footprint of ``box`` (cx, cy, w, h, ...): ``(s_in,
+    s_out)``, or ``None`` if it misses."""
+    low, high = -math.inf, math.inf
+    for axis in (0, 1):
+        lo = box[axis] - box[axis + 2] / 2 - centre[axis]
+        hi = box[axis] + box[axis + 2] / 2 - centre[axis]
+        if abs(u[axis]) < 1e-12:
+            if not lo <= 0 <= hi:
+                return None
+            continue
+        a, b = sorted((lo / u[axis], hi / u[axis]))
+        low, high = max(low, a), min(high, b)
+    return (low, high) if low <= high else None
+
+
+def draw_side(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float, float, float]) -> None:
+    """The side view of a 3-D world (section 11): altitude against ``s``, the distance from the
+    area's centre along :func:`side_axis`, in the vertical plane through that line. Obstacles
+    appear as their sections by the plane (solid red); cylinders and spheres within the laser's
+    range of the plane but not cut by it as faded silhouettes. The ground and the ceiling are grey
+    lines, the goal green, the UAVs (projected onto the plane) blue dots."""
+    u = side_axis(cfg, state)
+    centre = np.asarray(cfg.area_center, dtype=float)
+    ground, ceiling = cfg.altitude
+    half_range = (extent[1] - extent[0]) / 2
+
+    def along(xy: Any) -> tuple[float, float]:
+        offset = np.asarray(xy, dtype=float)[:2] - centre
+        return float(offset @ u), float(abs(offset[0] * u[1] - offset[1] * u[0]))
+
+    def block(s0: float, s1: float, z0: float, z1: float, alpha: float = 0.85) -> None:
+        s0, s1 = max(s0, -half_range - 1.0), min(s1, half_range + 1.0)
+        z0, z1 = max(z0, ground - 2.0), min(z1, ceiling + 2.0)
+        if s1 > s0 and z1 > z0:
+            ax.add_patch(Rectangle((s0, z0), s1 - s0, z1 - z0, facecolor=OBSTACLE_COLOR, edgecolor="none",
+                                   alpha=alpha, zorder=1))
+
+    cylinders = [*np.asarray(cfg.circles, dtype=float).reshape(-1, 5), *np.asarray(state.circles, float).reshape(-1, 5),
+                 *[[*c, cfg.moving_radius, -1e6, 1e6] for c in np.asarray(state.moving, float).reshape(-1, 2)]]
+    for cx, cy, r, z0, z1 in cylinders:
+        s, lateral = along((cx, cy))
+        if lateral < r:
+            chord = math.sqrt(r * r - lateral * lateral)
+            block(s - chord, s + chord, z0, z1)
+        elif lateral < r + cfg.laser_range:
+            block(s - r, s + r, z0, z1, alpha=0.15)
+    boxes = [*np.asarray(cfg.rectangles, dtype=float).reshape(-1, 6), *np.asarray(state.rectangles, float)
+             .reshape(-1, 6)]
+    for box in boxes:
+        section = _box_section(centre, u, box)
+        if section is not None:
+            block(section[0], section[1], box[4], box[5])
+    for cx, cy, cz, r in [*np.asarray(cfg.spheres, dtype=float).reshape(-1, 4), *np.asarray(state.spheres, float)
+                          .reshape(-1, 4)]:
+        s, lateral = along((cx, cy))
+        if lateral < r + cfg.laser_range:
+            cut = lateral < r
+            ax.add_patch(Circle((s, cz), math.sqrt(r * r - lateral * lateral) if cut else r,
+                                facecolor=OBSTACLE_COLOR, edgecolor="none", alpha=0.85 if cut else 0.15, zorder=1))
+    for z in (ground, ceiling):
+        ax.axhline(z, color="0.5", lw=1.0, zorder=0)
+    s_goal, _ = along(state.goal)
+    ax.add_patch(Circle((s_goal, state.goal_altitude), cfg.goal_radius, facecolor=GOAL_COLOR, alpha=0.5, zorder=2))
+    s_uav = (np.asarray(state.position, dtype=float) - centre) @ u
+    ax.scatter(s_uav, state.altitude, s=8, color=UAV_COLOR, edgecolors="black", linewidths=0.3, zorder=4)
+    ax.set_xlim(-half_range, half_range)
+    ax.set_ylim(ground - 2.0, ceiling + 2.0)
+    ax.set_xlabel("along the line from the area's centre to the goal (m)", fontsize=6)
+    ax.set_ylabel("altitude (m)", fontsize=6)
+    ax.tick_params(labelsize=5)
+
+
 def frame_image(cfg: Any, state: WorldState, extent: tuple[float, float, float, float], height: int, width: int,
            show_fov: bool, title: str | None) -> np.ndarray:
     fig, canvas = _figure(height, width)
-    ax = fig.add_axes((0, 0, 1, 1))
+    if state.altitude is not None:  # 3-D: top view (left) and side view (right)
+        ax = fig.add_axes((0, 0, 0.5, 1))
+        draw_side(fig.add_axes((0.58, 0.25, 0.4, 0.5)), cfg, state, extent)
+    else:
+        ax = fig.add_axes((0, 0, 1, 1))
     draw_world(ax, cfg, state, extent, show_fov=show_fov)
     if title:
         ax.text(0.02, 0.98, title, transform=ax.transAxes, ha="left", va="top", fontsize=8)

@@ -1,9 +1,16 @@
-"""Planar geometry on batched tensors: angles, ray casting, distances to obstacles.
+"""Geometry on batched tensors: angles, ray casting, distances to obstacles, in the plane or
+in space (docs/specification.md section 11).
 
-Obstacles come in two batched tensors (see :class:`Obstacles`):
+Obstacles come in two batched tensors in 2-D, three in 3-D (see :class:`Obstacles`):
 
-* circles ``[B, C, 3]`` holding ``(cx, cy, radius)``;
-* axis-aligned rectangles ``[B, R, 4]`` holding ``(cx, cy, width_x, height_y)``.
+* circles ``[B, C, 3]`` holding ``(cx, cy, radius)``; in 3-D vertical cylinders ``[B, C, 5]``
+  ``(cx, cy, radius, z_low, z_high)``;
+* axis-aligned rectangles ``[B, R, 4]`` holding ``(cx, cy, width_x, height_y)``; in 3-D boxes
+  ``[B, R, 6]`` ``(cx, cy, width_x, height_y, z_low, z_high)``;
+* in 3-D only, spheres ``[B, S, 4]`` ``(cx, cy, cz, radius)``.
+
+Every 3-D formula evaluates its horizontal part with the 2-D formula's own operations and adds
+the vertical part so that a zero vertical part changes no bit (section 11, the special case).
 
 Everything here is a pure function over leading batch dimensions; nothing loops over
 environments, UAVs, beams or obstacles.
@@ -37,6 +44,15 @@ def relative_angle(vec: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
     return wrap(bearing(vec) - heading)
 
 
+def length(vec: torch.Tensor) -> torch.Tensor:
+    """Euclidean length over the last dimension (2 or 3). A 3-vector with a zero vertical
+    component gets exactly the length of its horizontal part, as the 2-D world computes it."""
+    if vec.shape[-1] == 2:
+        return torch.linalg.vector_norm(vec, dim=-1)
+    return torch.where(vec[..., 2] == 0, torch.linalg.vector_norm(vec[..., :2], dim=-1),
+                       torch.linalg.vector_norm(vec, dim=-1))
+
+
 def circular_mean(angles: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
     """``atan2(sum sin, sum cos)`` along ``dim`` (docs/specification.md section 2, erratum to Eq. 18)."""
     return torch.atan2(torch.sin(angles).sum(dim, keepdim=keepdim), torch.cos(angles).sum(dim, keepdim=keepdim))
@@ -53,14 +69,29 @@ class Obstacles:
 
     circles: torch.Tensor
     rectangles: torch.Tensor
+    spheres: torch.Tensor | None = None  # 3-D only (``None``: a 2-D world)
 
     @property
     def count(self) -> int:
-        return self.circles.shape[-2] + self.rectangles.shape[-2]
+        return self.circles.shape[-2] + self.rectangles.shape[-2] + (
+            self.spheres.shape[-2] if self.spheres is not None else 0)
+
+    @property
+    def is_3d(self) -> bool:
+        return self.spheres is not None
 
     def __getitem__(self, index) -> "Obstacles":
         """The obstacles of the worlds ``index`` (batch dimension first)."""
-        return Obstacles(self.circles[index], self.rectangles[index])
+        return Obstacles(self.circles[index], self.rectangles[index],
+                         None if self.spheres is None else self.spheres[index])
+
+    def footprints(self) -> "Obstacles":
+        """The 2-D obstacles that cover these from above: a cylinder's or a sphere's circle, a box's
+        rectangle (circles first, spheres after the cylinders). A 2-D world's are itself."""
+        if self.spheres is None:
+            return self
+        spheres = torch.cat((self.spheres[..., :2], self.spheres[..., 3:]), -1)
+        return Obstacles(torch.cat((self.circles[..., :3], spheres), -2), self.rectangles[..., :4])
 
 
 def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Tensor) -> torch.Tensor:
@@ -173,6 +204,150 @@ def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: O
     )
 
 
+def _slab_z(oz: torch.Tensor, dz: torch.Tensor, low: torch.Tensor, high: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The vertical slab ``low <= z <= high`` along rays ``oz + t dz`` (the rectangle's slab test of
+    :func:`_ray_rectangle` on one axis): ``(t_enter, t_exit, origin inside)``, broadcast."""
+    lo, hi = low - oz, high - oz
+    inside = (lo <= 0) & (hi >= 0)
+    lo = torch.where(lo == 0, -1e-6, lo)
+    hi = torch.where(hi == 0, 1e-6, hi)
+    tiny = 1e-12
+    inv = 1.0 / torch.where(dz.abs() < tiny, torch.full_like(dz, tiny), dz)
+    t1, t2 = lo * inv, hi * inv
+    return torch.minimum(t1, t2), torch.maximum(t1, t2), inside
+
+
+def _ray_cylinder(origin: torch.Tensor, horizontal: torch.Tensor, cos_e: torch.Tensor, sin_e: torch.Tensor,
+                  cylinders: torch.Tensor) -> torch.Tensor:
+    """Distance along 3-D rays to vertical cylinders of finite height (section 11).
+
+    Args:
+        origin: ``[..., 1, 3]``; horizontal: ``[..., K, 2]`` unit horizontal directions; cos_e, sin_e:
+            ``[K]`` the rays' elevations (direction ``(cos_e horizontal, sin_e)``); cylinders
+            ``[..., 1, 5]``. Returns ``[..., K]`` as :func:`_ray_circle` (0 inside, ``inf`` a miss).
+
+    The side is :func:`_ray_circle`'s quadratic in the horizontal distance ``s`` (``t = s / cos_e``),
+    the caps the vertical slab; for a level ray within the height it is :func:`_ray_circle` bit for bit.
+    """
+    centre, radius = cylinders[..., :2], cylinders[..., 2]
+    f = origin[..., :2] - centre
+    b = (f * horizontal).sum(-1)
+    c = (f * f).sum(-1) - radius * radius
+    disc = b * b - c
+    root = torch.sqrt(disc.clamp_min(0.0))
+    s_near, s_far = -b - root, -b + root
+    inside_xy = c <= 0
+    valid = inside_xy | ((disc >= 0) & (s_near >= 0))
+    z_in, z_out, _ = _slab_z(origin[..., 2], sin_e, cylinders[..., 3], cylinders[..., 4])
+    enter = torch.maximum(torch.where(inside_xy, -math.inf, s_near / cos_e), z_in)
+    exit_ = torch.minimum(s_far / cos_e, z_out)
+    hit = valid & (enter <= exit_) & (exit_ >= 0)
+    return torch.where(hit, enter.clamp_min(0.0), math.inf)
+
+
+def _ray_box(origin: torch.Tensor, horizontal: torch.Tensor, cos_e: torch.Tensor, sin_e: torch.Tensor,
+             boxes: torch.Tensor) -> torch.Tensor:
+    """Distance along 3-D rays to axis-aligned boxes ``[..., 1, 6]`` (shapes as :func:`_ray_cylinder`):
+    :func:`_ray_rectangle`'s slab test in the horizontal distance, plus the vertical slab."""
+    half = boxes[..., 2:4] / 2
+    lo = boxes[..., :2] - half - origin[..., :2]
+    hi = boxes[..., :2] + half - origin[..., :2]
+    inside = ((lo <= 0) & (hi >= 0)).all(-1)
+    lo = torch.where(lo == 0, -1e-6, lo)
+    hi = torch.where(hi == 0, 1e-6, hi)
+    tiny = 1e-12
+    inv = 1.0 / torch.where(horizontal.abs() < tiny, torch.full_like(horizontal, tiny), horizontal)
+    tx1, tx2 = lo[..., 0] * inv[..., 0], hi[..., 0] * inv[..., 0]
+    ty1, ty2 = lo[..., 1] * inv[..., 1], hi[..., 1] * inv[..., 1]
+    z_in, z_out, inside_z = _slab_z(origin[..., 2], sin_e, boxes[..., 4], boxes[..., 5])
+    t_near = torch.maximum(torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2)) / cos_e, z_in)
+    t_far = torch.minimum(torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2)) / cos_e, z_out)
+    hit = (t_far >= t_near) & (t_far >= 0)
+    t = torch.where(hit, t_near.clamp_min(0.0), math.inf)
+    return torch.where(inside & inside_z, 0.0, t)
+
+
+def _ray_sphere(origin: torch.Tensor, horizontal: torch.Tensor, cos_e: torch.Tensor, sin_e: torch.Tensor,
+                spheres: torch.Tensor) -> torch.Tensor:
+    """Distance along 3-D rays to spheres ``[..., 1, 4]`` (shapes as :func:`_ray_cylinder`)."""
+    direction = torch.cat((horizontal * cos_e[..., None], sin_e[..., None].expand(*horizontal.shape[:-1], 1)), -1)
+    f = origin - spheres[..., :3]
+    b = (f * direction).sum(-1)
+    c = (f * f).sum(-1) - spheres[..., 3] * spheres[..., 3]
+    disc = b * b - c
+    t_near = -b - torch.sqrt(disc.clamp_min(0.0))
+    hit = (disc >= 0) & (t_near >= 0)
+    t = torch.where(hit, t_near, torch.full_like(t_near, math.inf))
+    return torch.where(c <= 0, torch.zeros_like(t), t)
+
+
+def cast_rays_3d(origin: torch.Tensor, horizontal: torch.Tensor, cos_e: torch.Tensor, sin_e: torch.Tensor,
+                 obstacles: Obstacles, max_range: float, static_shapes: bool = False
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`cast_rays_along` in space: rays from ``origin [B, N, 3]`` along ``(cos_e horizontal,
+    sin_e)``, ``horizontal [B, N, K, 2]`` unit, ``cos_e, sin_e [K]`` (section 11, laser rings),
+    against cylinders, boxes and spheres (index order: cylinders, boxes, spheres). Eager code casts
+    only the (UAV, obstacle) pairs within range, ``static_shapes`` every pair; the same values."""
+    b, n, k = horizontal.shape[:3]
+    if obstacles.count == 0:
+        return (origin.new_full((b, n, k), max_range),
+                torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
+    shapes = ((obstacles.circles, _ray_cylinder, distance_to_cylinders),
+              (obstacles.rectangles, _ray_box, distance_to_boxes),
+              (obstacles.spheres, _ray_sphere, distance_to_spheres))
+    if static_shapes:
+        t = torch.cat([cast(origin[:, :, None, None], horizontal[:, :, None], cos_e, sin_e, tensors[:, None, :, None])
+                       for tensors, cast, _ in shapes if tensors.shape[-2]], -2)
+    else:
+        t = origin.new_full((b, n, obstacles.count, k), math.inf)
+        offset = 0
+        for tensors, cast, distance in shapes:  # three obstacle shapes, not a loop over worlds or UAVs
+            m = tensors.shape[-2]
+            if m:
+                near = distance(origin, tensors) < max_range
+                bi, ni, mi = near.nonzero(as_tuple=True)
+                if bi.numel():
+                    t[bi, ni, offset + mi] = cast(origin[bi, ni, None], horizontal[bi, ni], cos_e, sin_e,
+                                                  tensors[bi, mi, None])
+            offset += m
+    t_min, idx = t.min(-2)
+    in_range = t_min < max_range
+    return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(
+        in_range, idx, torch.full_like(idx, -1))
+
+
+def _vertical_excess(points: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """How far points ``[B, N, 3]`` lie above or below the height ranges ``[B, M]`` (negative
+    inside), ``[B, N, M]``."""
+    return (points[:, :, None, 2] - (low + high)[:, None] / 2).abs() - (high - low)[:, None] / 2
+
+
+def distance_to_cylinders(points: torch.Tensor, cylinders: torch.Tensor) -> torch.Tensor:
+    """Signed distance from points ``[B, N, 3]`` to the surfaces of cylinders ``[B, C, 5]`` -> ``[B, N, C]``;
+    within the cylinder's height it is :func:`distance_to_circles` bit for bit."""
+    q_r = distance_to_circles(points[..., :2], cylinders[..., :3])
+    q_z = _vertical_excess(points, cylinders[..., 3], cylinders[..., 4])
+    out = q_r.clamp_min(0.0)
+    outside = torch.where(q_z > 0, torch.hypot(out, q_z), out)
+    return outside + torch.maximum(q_r, q_z).clamp_max(0.0)
+
+
+def distance_to_boxes(points: torch.Tensor, boxes: torch.Tensor) -> torch.Tensor:
+    """Signed distance from points ``[B, N, 3]`` to the surfaces of boxes ``[B, R, 6]`` -> ``[B, N, R]``;
+    within the box's height it is :func:`distance_to_rectangles` bit for bit."""
+    q = (points[:, :, None, :2] - boxes[:, None, :, :2]).abs() - boxes[:, None, :, 2:4] / 2
+    q_z = _vertical_excess(points, boxes[..., 4], boxes[..., 5])
+    flat = torch.linalg.vector_norm(q.clamp_min(0.0), dim=-1)
+    outside = torch.where(q_z > 0, torch.hypot(flat, q_z), flat)
+    return outside + torch.maximum(q.amax(-1), q_z).clamp_max(0.0)
+
+
+def distance_to_spheres(points: torch.Tensor, spheres: torch.Tensor) -> torch.Tensor:
+    """Signed distance from points ``[B, N, 3]`` to sphere surfaces ``[B, S, 4]`` -> ``[B, N, S]``."""
+    return torch.linalg.vector_norm(points[:, :, None] - spheres[:, None, :, :3], dim=-1) - spheres[:, None, :, 3]
+
+
 def distance_to_circles(points: torch.Tensor, circles: torch.Tensor) -> torch.Tensor:
     """Signed distance from points ``[B, N, 2]`` to circle surfaces ``[B, C, 3]`` -> ``[B, N, C]``."""
     return torch.linalg.vector_norm(points[:, :, None] - circles[:, None, :, :2], dim=-1) - circles[:, None, :, 2]
@@ -190,12 +365,19 @@ def distance_to_rectangles(points: torch.Tensor, rects: torch.Tensor) -> torch.T
 
 
 def distance_to_obstacles(points: torch.Tensor, obstacles: Obstacles) -> torch.Tensor:
-    """Signed distance to every obstacle surface, ``[B, N, C + R]`` (circles first)."""
+    """Signed distance to every obstacle surface, ``[B, N, C + R]`` (circles first; in 3-D
+    ``[B, N, C + R + S]``, cylinders, boxes, spheres)."""
     parts = []
-    if obstacles.circles.shape[-2] > 0:
-        parts.append(distance_to_circles(points, obstacles.circles))
-    if obstacles.rectangles.shape[-2] > 0:
-        parts.append(distance_to_rectangles(points, obstacles.rectangles))
+    if obstacles.is_3d:
+        for tensors, distance in ((obstacles.circles, distance_to_cylinders), (obstacles.rectangles, distance_to_boxes),
+                                  (obstacles.spheres, distance_to_spheres)):
+            if tensors.shape[-2] > 0:
+                parts.append(distance(points, tensors))
+    else:
+        if obstacles.circles.shape[-2] > 0:
+            parts.append(distance_to_circles(points, obstacles.circles))
+        if obstacles.rectangles.shape[-2] > 0:
+            parts.append(distance_to_rectangles(points, obstacles.rectangles))
     if not parts:
         return points.new_empty(points.shape[:-1] + (0,))
     return torch.cat(parts, -1)
@@ -213,10 +395,10 @@ def pairwise(positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Pairwise offsets and distances between UAVs.
 
     Args:
-        positions: ``[B, N, 2]``.
+        positions: ``[B, N, 2]`` (or ``[B, N, 3]``).
 
     Returns:
-        ``(offset [B, N, N, 2], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
+        ``(offset [B, N, N, d], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
     """
     offset = positions[:, None, :, :] - positions[:, :, None, :]
-    return offset, torch.linalg.vector_norm(offset, dim=-1)
+    return offset, length(offset)

@@ -1,10 +1,11 @@
-"""The repulsion instinct (docs/specification.md section 3; paper Eq. 26-29)."""
+"""The repulsion instinct (docs/specification.md section 3; paper Eq. 26-29; in 3-D section 11)."""
 
 from __future__ import annotations
 
 import torch
 
 from ..config.scenario import INSTINCT_MODES
+from .geometry import length
 from .sensors import Neighbours, beam_return_offset
 
 
@@ -31,20 +32,34 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
         ``[B, N, 2]`` ``v_rep_i = sum_j (v_r_ij + v_t_ij)`` (Eq. 29).
     """
     dx, dy = offset[..., 0].contiguous(), offset[..., 1].contiguous()
+    if offset.shape[-1] == 3:  # 3-D (section 11)
+        dz = offset[..., 2].contiguous()
+        return torch.stack(repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy + dz * dz), active, to_goal, gain, r0,
+                                        tangential, dz), -1)
     vx, vy = repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy), active, to_goal, gain, r0, tangential)
     return torch.stack((vx, vy), -1)
 
 
 def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
-                 gain: float, r0: float, tangential: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+                 gain: float, r0: float, tangential: bool = True, dz: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, ...]:
     """Eq. 26-29 (:func:`repulsion`) on the offset's components ``dx, dy`` and length ``dist``
     (each ``[B, N, M]``), summed over ``M``: ``(v_x, v_y)``, each ``[B, N]``. The one home of
-    the repulsion's formula: :func:`repulsion` and :func:`instinct_command` call it."""
+    the repulsion's formula: :func:`repulsion` and :func:`instinct_command` call it.
+
+    In 3-D (``dz`` given, ``to_goal [B, N, 3]``; section 11): ``(v_x, v_y, v_z)``, with ``v_t`` of
+    ``|v_r|`` along the goal's component orthogonal to ``v_r``; where ``v_r`` and the goal are both
+    level that is the 2-D ``v_t``, computed as in 2-D (and so where that component is zero)."""
     counted = active & (dist > 0) & (dist < r0)
     # Per neighbour: v_r = -scale * (dx, dy), scale = gain (r0 - d) / d where counted, else 0.
     scale = torch.where(counted, gain * (r0 - dist) / torch.where(counted, dist, torch.ones_like(dist)),
                         torch.zeros_like(dist))
     rx, ry = -scale * dx, -scale * dy
+    if dz is not None:
+        rz = -scale * dz
+        if not tangential:
+            return rx.sum(-1), ry.sum(-1), rz.sum(-1)
+        return _tangential_3d(rx, ry, rz, to_goal)
     if not tangential:
         return rx.sum(-1), ry.sum(-1)
     # v_t = rotate(v_r, +90 deg) = (-ry, rx), flipped where it points away from the goal.
@@ -53,10 +68,27 @@ def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active:
     return (rx - sign * ry).sum(-1), (ry + sign * rx).sum(-1)
 
 
+def _tangential_3d(rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor, to_goal: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``sum_j (v_r + v_t)`` in 3-D for radial terms ``(rx, ry, rz) [B, N, M]`` (section 11)."""
+    gx, gy, gz = to_goal[..., 0, None], to_goal[..., 1, None], to_goal[..., 2, None]
+    sign = torch.where(-ry * gx + rx * gy >= 0, 1.0, -1.0)  # the planar form, as in 2-D
+    rr = rx * rx + ry * ry + rz * rz
+    k = (gx * rx + gy * ry + gz * rz) / torch.where(rr > 0, rr, torch.ones_like(rr))
+    px, py, pz = gx - k * rx, gy - k * ry, gz - k * rz        # the goal's part orthogonal to v_r
+    pn = torch.sqrt(px * px + py * py + pz * pz)
+    m = torch.sqrt(rr) / torch.where(pn > 0, pn, torch.ones_like(pn))
+    planar = ((rz == 0) & (gz == 0)) | (pn == 0)
+    tx = torch.where(planar, -sign * ry, m * px)
+    ty = torch.where(planar, sign * rx, m * py)
+    tz = torch.where(planar, torch.zeros_like(rz), m * pz)
+    return (rx + tx).sum(-1), (ry + ty).sum(-1), (rz + tz).sum(-1)
+
+
 def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                    neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float, tangential: bool,
-                   shortest: tuple[torch.Tensor, torch.Tensor] | None = None, pushing: torch.Tensor | None = None
-                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                   shortest: tuple[torch.Tensor, torch.Tensor] | None = None, pushing: torch.Tensor | None = None,
+                   rings=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The instinct's switch and its two parts, from what the UAV senses (specification section 3).
 
     The UAV switches to repulsion when ``min(d_uav1, d_scan1) <= d_safe``; the repulsion sums
@@ -68,24 +100,27 @@ def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Te
         shortest: ``shortest_beams(beams, k)`` if already known.
         pushing: ``[B, N, M]``, the camera neighbours that push (default: every visible one; the
             switch always reads every visible one). Variants beyond the paper narrow it.
+        rings: 3-D (section 11): the laser's ring elevations; positions, goal and pushes are then 3-D.
 
     Returns:
         ``(triggered [B, N] bool, uav_part [B, N, 2], obstacle_part [B, N, 2])``: the pushes of
         the UAVs and of the virtual UAV on the obstacle (not yet summed or clipped).
     """
-    d_scan1, wall_offset = beam_return_offset(beams, heading, shortest)
+    d_scan1, wall_offset = beam_return_offset(beams, heading, shortest, rings)
     to_goal = goal[:, None, :] - position
-    ux, uy = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance,
-                          neighbours.visible if pushing is None else pushing, to_goal, gain, r0, tangential)
-    wx, wy = repulsion_xy(wall_offset[..., 0, None], wall_offset[..., 1, None], d_scan1[..., None],
-                          torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential)
+    uav = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance,
+                       neighbours.visible if pushing is None else pushing, to_goal, gain, r0, tangential,
+                       neighbours.dz)
+    wall = repulsion_xy(wall_offset[..., 0, None], wall_offset[..., 1, None], d_scan1[..., None],
+                        torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential,
+                        None if rings is None else wall_offset[..., 2, None])
     triggered = torch.minimum(neighbours.nearest_distance(), d_scan1) <= safe_distance
-    return triggered, torch.stack((ux, uy), -1), torch.stack((wx, wy), -1)
+    return triggered, torch.stack(uav, -1), torch.stack(wall, -1)
 
 
 def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading: torch.Tensor, gain: float,
                   r0: float, safe_distance: float, shortest: tuple[torch.Tensor, torch.Tensor] | None = None,
-                  cap: float | None = None) -> torch.Tensor:
+                  cap: float | None = None, rings=None) -> torch.Tensor:
     """The UAVs' push ``uav [B, N, 2]`` of :func:`instinct_parts` under an instinct mode.
 
     - ``paper``: unchanged (Eq. 29).
@@ -100,10 +135,10 @@ def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading:
         return uav
     if mode == "saturated":
         limit = gain * (r0 - safe_distance) if cap is None else cap
-        norm = torch.linalg.vector_norm(uav, dim=-1, keepdim=True)
+        norm = length(uav)[..., None]
         return uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
     if mode == "no_push_in":
-        d_scan1, wall = beam_return_offset(beams, heading, shortest)
+        d_scan1, wall = beam_return_offset(beams, heading, shortest, rings)
         seen = (d_scan1 > 0) & (d_scan1 < r0)
         normal = -wall / d_scan1.clamp_min(1e-12)[..., None]  # outward: from the return point to the UAV
         inward = (uav * normal).sum(-1, keepdim=True).clamp_max(0.0)
@@ -114,12 +149,13 @@ def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading:
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                      neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
                      tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None,
-                     mode: str = "paper") -> tuple[torch.Tensor, torch.Tensor]:
+                     mode: str = "paper", rings=None) -> tuple[torch.Tensor, torch.Tensor]:
     """The instinct's switch and command (:func:`instinct_parts`, the UAVs' part under
     :func:`hold_in_crowd`'s ``mode``, summed): ``(triggered [B, N] bool, command [B, N, 2])``,
     the command not yet clipped."""
     triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
-                                              safe_distance=safe_distance, tangential=tangential, shortest=shortest)
+                                              safe_distance=safe_distance, tangential=tangential, shortest=shortest,
+                                              rings=rings)
     uav = hold_in_crowd(uav, mode, beams=beams, heading=heading, gain=gain, r0=r0, safe_distance=safe_distance,
-                        shortest=shortest)
+                        shortest=shortest, rings=rings)
     return triggered, uav + obstacle

@@ -113,7 +113,8 @@ def world_bytes(scenario: Any) -> int:
     fallback grid (measured peaks: 4.7 kB per UAV at N = 5, 44 kB at N = 2000, 12 kB at N = 200
     among obstacles)."""
     n = scenario.n_uavs
-    return n * (8192 + 40 * n + 64 * scenario.n_beams) + 64 * forest_cells(scenario) * _blockers(scenario)
+    beams = getattr(scenario, "n_laser", scenario.n_beams)  # every ring's beams in 3-D (section 11)
+    return n * (8192 + 40 * n + 64 * beams) + 64 * forest_cells(scenario) * _blockers(scenario)
 
 
 def _blockers(scenario: Any) -> int:

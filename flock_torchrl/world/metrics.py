@@ -16,7 +16,7 @@ from typing import Mapping
 import torch
 from tensordict import TensorDict
 
-from .geometry import circular_mean, pairwise, wrap
+from .geometry import circular_mean, length, pairwise, wrap
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
     """Swarm quantities of one time step, each ``[B]``.
 
     Args:
-        position, velocity: ``[B, N, 2]``; heading ``[B, N]``;
+        position, velocity: ``[B, N, 2]`` (3-D: ``[B, N, 3]``, section 11); heading ``[B, N]``;
         obstacle_distance: ``[B, N]`` signed distance to the nearest obstacle surface (negative inside).
         pair_distance: the closest pair ``[B]`` (:func:`closest_pair`) if already known.
 
@@ -82,14 +82,14 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
     uav = pair_distance if pair_distance is not None else closest_pair(pairwise(position)[1])
     centre = position.mean(-2, keepdim=True)
     swarm_velocity = velocity.mean(-2)
-    v_c = torch.linalg.vector_norm(swarm_velocity, dim=-1)
-    v_i = torch.linalg.vector_norm(velocity, dim=-1)
+    v_c = length(swarm_velocity)  # 2-D or 3-D (section 11)
+    v_i = length(velocity)
     phi_bar = circular_mean(heading, -1, keepdim=True)
     return {
         # A UAV that overshoots into an obstacle on its crash step is at distance 0, not negative.
         "obs": obstacle_distance.amin(-1).clamp_min(0.0),
         "uav": uav,
-        "d_c": torch.linalg.vector_norm(position - centre, dim=-1).mean(-1),
+        "d_c": length(position - centre).mean(-1),
         "v_error": (v_i - v_c[:, None]).abs().mean(-1),
         "phi_error": wrap(heading - phi_bar).abs().mean(-1),
         "speed": v_c,

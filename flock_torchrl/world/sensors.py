@@ -7,28 +7,55 @@ observation ``[o_g, o_scan, o_cam]`` and the critic state ``[o_g, o_scan, s_cam,
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass
 
 import torch
 
-from .geometry import Obstacles, cast_rays_along, circular_mean, relative_angle, wrap
+from .geometry import Obstacles, cast_rays_3d, cast_rays_along, circular_mean, length, relative_angle, wrap
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
 SCAN_SLOT = 2     # per beam of o_scan: [d / d_max^scan, alpha / pi]
 CAMERA_SLOT = 3   # per slot of o_cam and s_cam: [min(d / d_v, 1), alpha / pi, wrap(phi_i - phi_j) / pi]
 CENTRE_SIZE = 3   # s_c: [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]
+# In 3-D (section 11) each piece gains an elevation, the camera and the centre also a climb difference.
+SIZES_3D = {"goal": 3, "scan": 3, "camera": 5, "centre": 5}
+
+
+def piece_sizes(cfg) -> dict[str, int]:
+    """Numbers per piece (goal, scan slot, camera slot, centre) in ``cfg``'s dimension."""
+    if getattr(cfg, "dims", 2) == 3:
+        return SIZES_3D
+    return {"goal": GOAL_SIZE, "scan": SCAN_SLOT, "camera": CAMERA_SLOT, "centre": CENTRE_SIZE}
 
 
 def observation_size(cfg) -> int:
     """Length of the actor's observation ``[o_g, o_scan, o_cam]`` for a scenario ``cfg`` (its
-    ``n_scan`` beams and ``n_cam`` camera slots): 17 in the paper."""
-    return GOAL_SIZE + SCAN_SLOT * cfg.n_scan + CAMERA_SLOT * cfg.n_cam
+    ``n_scan`` beams and ``n_cam`` camera slots): 17 in the paper, 27 in 3-D (section 11)."""
+    size = piece_sizes(cfg)
+    return size["goal"] + size["scan"] * cfg.n_scan + size["camera"] * cfg.n_cam
 
 
 def state_size(cfg) -> int:
-    """Length of the critic's state ``[o_g, o_scan, s_cam, s_c]`` for a scenario ``cfg``: 20 in the paper."""
-    return observation_size(cfg) + CENTRE_SIZE
+    """Length of the critic's state ``[o_g, o_scan, s_cam, s_c]`` for a scenario ``cfg``: 20 in the paper, 32 in 3-D."""
+    return observation_size(cfg) + piece_sizes(cfg)["centre"]
+
+
+def planar_entries(cfg, critic: bool = False) -> list[int]:
+    """Where a 3-D observation (``critic``: state) keeps the 2-D one's entries: the indices whose
+    removal (the elevations and climb differences) leaves the 2-D layout (section 11, the special case)."""
+    keep = [0, 1]
+    at = 3
+    for _ in range(cfg.n_scan):
+        keep += [at, at + 1]
+        at += 3
+    for _ in range(cfg.n_cam):
+        keep += [at, at + 1, at + 3]
+        at += 5
+    if critic:
+        keep += [at, at + 1, at + 3]
+    return keep
 
 
 def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor:
@@ -54,19 +81,33 @@ def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), -1)
 
 
+def ring_tables(rings, n_beams: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``cos`` and ``sin`` of every beam's elevation, ring by ring, ``[len(rings) n_beams]`` each."""
+    cos_e = [math.cos(e) for e in rings for _ in range(n_beams)]
+    sin_e = [math.sin(e) for e in rings for _ in range(n_beams)]
+    return (torch.tensor(cos_e, dtype=like.dtype, device=like.device),
+            torch.tensor(sin_e, dtype=like.dtype, device=like.device))
+
+
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
-               max_range: float, static_shapes: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+               max_range: float, static_shapes: bool = False, rings=None) -> tuple[torch.Tensor, torch.Tensor]:
     """All laser beams of every UAV.
 
     Args:
-        position: ``[B, N, 2]``; heading: ``[B, N]``.
+        position: ``[B, N, 2]`` (3-D: ``[B, N, 3]``); heading: ``[B, N]``.
         static_shapes: cast every beam at every obstacle (:func:`~.geometry.cast_rays_along`).
+        rings: 3-D only, the rings' elevations (rad, section 11): ``n_beams`` beams on each.
 
     Returns:
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
+        In 3-D ``[B, N, len(rings) n_beams]``, beam ``(r, k)`` at index ``r n_beams + k``.
     """
-    return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range, static_shapes)
+    if rings is None:
+        return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range, static_shapes)
+    horizontal = beam_directions(heading, n_beams).repeat(1, 1, len(rings), 1)
+    cos_e, sin_e = ring_tables(rings, n_beams, position)
+    return cast_rays_3d(position, horizontal, cos_e, sin_e, obstacles, max_range, static_shapes)
 
 
 def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -97,26 +138,57 @@ def shortest_beams(beams: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Ten
 
 
 def scan_observation(beams: torch.Tensor, n: int, max_range: float,
-                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None, rings=None) -> torch.Tensor:
     """``o_scan`` (Eq. 16): ``[d_k / d_max^scan, alpha_k / pi]`` for the ``n`` shortest beams.
 
     Args:
         shortest: :func:`shortest_beams` of ``beams`` if already known (at least ``n`` of them).
 
     Returns:
-        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``.
+        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``; with ``rings`` (3-D,
+        section 11) ``[B, N, 3 n]``, ``(d_k, alpha_k, e_k / pi)`` with ``e_k`` the beam's ring elevation.
     """
     dist, idx = shortest if shortest is not None else shortest_beams(beams, n)
     dist, idx = dist[..., :n], idx[..., :n]
-    alpha = wrap(beam_offsets(beams.shape[-1], beams.device, beams.dtype))[idx]
-    return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
+    if rings is None:
+        alpha = wrap(beam_offsets(beams.shape[-1], beams.device, beams.dtype))[idx]
+        return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
+    n_beams = beams.shape[-1] // len(rings)
+    alpha = wrap(beam_offsets(n_beams, beams.device, beams.dtype))[idx % n_beams]
+    elevation = torch.tensor(list(rings), dtype=beams.dtype, device=beams.device)[idx // n_beams]
+    return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi, elevation / math.pi),
+                       -1).flatten(-2)
 
 
-def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def elevation_of(dx: torch.Tensor, dy: torch.Tensor, dz: torch.Tensor) -> torch.Tensor:
+    """Elevation of offsets ``(dx, dy, dz)`` above the horizontal plane, ``atan2(dz, |d_h|)``."""
+    return torch.atan2(dz, torch.sqrt(dx * dx + dy * dy))
+
+
+def off_axis(alpha: torch.Tensor, beta: torch.Tensor, climb: torch.Tensor) -> torch.Tensor:
+    """Angle between a UAV's direction of flight (flight-path angle ``climb``) and a direction of
+    azimuth ``alpha`` relative to its heading and elevation ``beta`` (section 11):
+    ``atan2(|u x w|, u . w)``, and exactly ``|alpha|`` where both are level."""
+    cb, sb, cg, sg = torch.cos(beta), torch.sin(beta), torch.cos(climb), torch.sin(climb)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    cross = torch.sqrt((sg * cb * sa) ** 2 + (sg * cb * ca - cg * sb) ** 2 + (cg * cb * sa) ** 2)
+    theta = torch.atan2(cross, cg * cb * ca + sg * sb)
+    return torch.where((beta == 0) & (climb == 0), alpha.abs(), theta)
+
+
+def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, climb: torch.Tensor | None = None
+               ) -> tuple[torch.Tensor, ...]:
     """The goal as each UAV sees it: distance ``d_g`` and angle ``alpha_g`` relative to the
-    heading (Eq. 14-15 before normalising), each ``[B, N]``, for a ``goal [B, 2]``."""
+    heading (Eq. 14-15 before normalising), each ``[B, N]``, for a ``goal [B, 2]``.
+
+    In 3-D (``goal [B, 3]``, ``climb [B, N]``; section 11): ``(d_g, alpha_g, beta_g, theta_g)``, the
+    3-D distance, azimuth, elevation and off-axis angle (what the reward's angle term reads)."""
     to_goal = goal[:, None, :] - position
-    return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
+    if climb is None:
+        return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
+    alpha = relative_angle(to_goal, heading)
+    beta = elevation_of(to_goal[..., 0], to_goal[..., 1], to_goal[..., 2])
+    return length(to_goal), alpha, beta, off_axis(alpha, beta, climb)
 
 
 def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor,
@@ -124,10 +196,14 @@ def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.
     """``o_g = [min(d_g / d_s, 1), alpha_g / pi]`` (Eq. 14-15, erratum: divide by d_s).
 
     Args:
-        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``.
+        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``; given
+        a 3-D ``polar``, ``[min(d_g / d_s, 1), alpha_g / pi, beta_g / pi]`` (section 11).
     """
-    d, alpha = polar if polar is not None else goal_polar(position, heading, goal)
-    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), -1)
+    polar = polar if polar is not None else goal_polar(position, heading, goal)
+    d, alpha = polar[0], polar[1]
+    if len(polar) == 2:
+        return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), -1)
+    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi, polar[2] / math.pi), -1)
 
 
 @dataclass
@@ -147,14 +223,26 @@ class Neighbours:
     dx: torch.Tensor
     dy: torch.Tensor
     valid: torch.Tensor | None = None  # packed (near_neighbours): which of the M entries hold a UAV
+    # 3-D only (section 11): the vertical offset, the elevation, gamma_i - gamma_j, the off-axis angle.
+    dz: torch.Tensor | None = None
+    elevation: torch.Tensor | None = None
+    climb_difference: torch.Tensor | None = None
+    view_angle: torch.Tensor | None = None
+
+    @property
+    def cone_angle(self) -> torch.Tensor:
+        """The angle the field of view bounds: ``|bearing|`` in 2-D, the off-axis angle in 3-D."""
+        return self.bearing if self.view_angle is None else self.view_angle
 
     def offsets(self, heading: torch.Tensor | None = None) -> torch.Tensor:
-        """Measured ``p_j - p_i`` in the world frame, ``[B, N, N, 2]``."""
+        """Measured ``p_j - p_i`` in the world frame, ``[B, N, N, 2]`` (3-D: ``[B, N, N, 3]``)."""
+        if self.dz is not None:
+            return torch.stack((self.dx, self.dy, self.dz), -1)
         return torch.stack((self.dx, self.dy), -1)
 
     def with_visibility(self, visible: torch.Tensor) -> "Neighbours":
         """The same measurements seen through another camera (e.g. the critic's all-round one)."""
-        return Neighbours(self.distance, self.bearing, self.heading_difference, visible, self.dx, self.dy, self.valid)
+        return dataclasses.replace(self, visible=visible)
 
     def nearest_distance(self) -> torch.Tensor:
         """``d_uav1``: distance to the nearest visible UAV, ``inf`` if none, ``[B, N]``."""
@@ -188,6 +276,19 @@ def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, h
             wrap(heading_i - heading_j))
 
 
+def measure_pairs_3d(dx: torch.Tensor, dy: torch.Tensor, dz: torch.Tensor, heading_i: torch.Tensor,
+                     heading_j: torch.Tensor, climb_i: torch.Tensor, climb_j: torch.Tensor) -> dict[str, torch.Tensor]:
+    """:func:`measure_pairs` in space (section 11): the 3-D distance, the azimuth relative to i's
+    heading, ``wrap(phi_i - phi_j)``, and the elevation, ``gamma_i - gamma_j`` and the off-axis
+    angle of j from i's direction of flight; with ``dz = 0`` and level flight the first three are
+    :func:`measure_pairs`'s bit for bit."""
+    bearing = wrap(torch.atan2(dy, dx) - heading_i)
+    elevation = elevation_of(dx, dy, dz)
+    return {"distance": torch.sqrt(dx * dx + dy * dy + dz * dz), "bearing": bearing,
+            "heading_difference": wrap(heading_i - heading_j), "elevation": elevation,
+            "climb_difference": climb_i - climb_j, "view_angle": off_axis(bearing, elevation, climb_i)}
+
+
 def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
                        ) -> Neighbours:
     """True camera measurements between all UAV pairs (no occlusion, section 2 decision)."""
@@ -215,7 +316,8 @@ class NearPairs:
 
 
 def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
-                    static_shapes: bool = False) -> tuple[Neighbours, NearPairs, torch.Tensor]:
+                    static_shapes: bool = False, climb: torch.Tensor | None = None
+                    ) -> tuple[Neighbours, NearPairs, torch.Tensor]:
     """:func:`observe_neighbours` for the pairs that can matter: only a UAV closer than
     ``camera_range`` can be seen or push back (the repulsion's ``r0`` is the camera's range).
 
@@ -230,6 +332,10 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     pair is kept (``M = N``). With ``static_shapes`` every pair is kept, always: the packing
     has data-dependent shapes, which ``torch.compile(fullgraph=True)`` cannot trace.
 
+    In 3-D (``position [B, N, 3]``, ``climb [B, N]``; section 11) the distances are 3-D, the
+    camera a cone about the direction of flight, and the neighbours carry their elevations and
+    climb differences (:func:`measure_pairs_3d`).
+
     Returns:
         ``(neighbours [B, N, M], where they came from, closest pair [B])`` (``inf`` for one UAV).
     """
@@ -239,6 +345,11 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     dx_all = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
     dy_all = py[..., None, :] - py[..., :, None]
     squared = dx_all * dx_all + dy_all * dy_all
+    dz_all = None
+    if climb is not None:
+        pz = position[..., 2].contiguous()
+        dz_all = pz[..., None, :] - pz[..., :, None]
+        squared = squared + dz_all * dz_all
     squared.diagonal(dim1=-2, dim2=-1).fill_(math.inf)  # never oneself
     # sqrt is monotone and exactly rounded: the smallest distance is the root of the smallest square.
     closest = torch.sqrt(squared.flatten(-2).amin(-1))
@@ -246,6 +357,12 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     near = squared < (camera_range * (1 + 1e-6)) ** 2
     if static_shapes or 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
         valid = ~torch.eye(n, dtype=torch.bool, device=dev).expand(b, n, n)
+        if climb is not None:
+            m = measure_pairs_3d(dx_all, dy_all, dz_all, heading[..., :, None], heading[..., None, :],
+                                 climb[..., :, None], climb[..., None, :])
+            visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
+            return (Neighbours(visible=visible, dx=dx_all, dy=dy_all, valid=valid, dz=dz_all, **m),
+                    NearPairs(None, valid), closest)
         # Oneself at distance 0, as measured (never valid; S4 noise keeps it finite).
         distance, rel_bearing, heading_difference = measure_pairs(dx_all, dy_all, heading[..., :, None],
                                                                   heading[..., None, :])
@@ -265,6 +382,13 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     dx, dy = dx_all.flatten().take(flat), dy_all.flatten().take(flat)
     other = (rows - rows % n)[:, None].repeat(1, width)  # index of UAV j's heading; padding: world's first
     other.view(-1)[at] = bi * n + ji
+    if climb is not None:
+        dz = dz_all.flatten().take(flat)
+        others = other.view(b, n, width)
+        m = measure_pairs_3d(dx, dy, dz, heading[..., None], heading.flatten().take(others), climb[..., None],
+                             climb.flatten().take(others))
+        visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
+        return Neighbours(visible=visible, dx=dx, dy=dy, valid=valid, dz=dz, **m), NearPairs(flat, valid), closest
     distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., None],
                                                               heading.flatten().take(other.view(b, n, width)))
     visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
@@ -279,41 +403,46 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
     ``[1, 0, 0]``.
 
     Returns:
-        ``[B, N, 3 n]``.
+        ``[B, N, 3 n]``; in 3-D ``[B, N, 5 n]``, slots ``[d, alpha, beta, dphi, dgamma]`` (missing
+        ``[1, 0, 0, 0, 0]``).
     """
     key = torch.where(neighbours.visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
     first, order = smallest(key, min(n, key.shape[-1]))
     present = torch.isfinite(first)
-    slots = torch.stack(
-        (
-            (torch.gather(neighbours.distance, -1, order) / camera_range).clamp(0.0, 1.0),
-            torch.gather(neighbours.bearing, -1, order) / math.pi,
-            torch.gather(neighbours.heading_difference, -1, order) / math.pi,
-        ),
-        -1,
-    )
-    missing = slots.new_tensor([1.0, 0.0, 0.0])
+    parts = [(torch.gather(neighbours.distance, -1, order) / camera_range).clamp(0.0, 1.0),
+             torch.gather(neighbours.bearing, -1, order) / math.pi]
+    if neighbours.elevation is not None:  # 3-D (section 11): the elevation after the azimuth
+        parts.append(torch.gather(neighbours.elevation, -1, order) / math.pi)
+    parts.append(torch.gather(neighbours.heading_difference, -1, order) / math.pi)
+    if neighbours.climb_difference is not None:
+        parts.append(torch.gather(neighbours.climb_difference, -1, order) / math.pi)
+    slots = torch.stack(parts, -1)
+    missing = slots.new_tensor([1.0] + [0.0] * (len(parts) - 1))
     slots = torch.where(present[..., None], slots, missing)
     if slots.shape[-2] < n:  # fewer other UAVs than slots
-        pad = missing.expand(*slots.shape[:-2], n - slots.shape[-2], CAMERA_SLOT)
+        pad = missing.expand(*slots.shape[:-2], n - slots.shape[-2], len(parts))
         slots = torch.cat((slots, pad), -2)
     return slots.flatten(-2)
 
 
-def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_range: float) -> torch.Tensor:
+def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_range: float,
+                       climb: torch.Tensor | None = None) -> torch.Tensor:
     """``s_c = [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]`` (specification section 2, Eq. 18 erratum).
 
-    ``phi_bar`` is the circular mean heading. Returns ``[B, N, 3]``.
+    ``phi_bar`` is the circular mean heading. Returns ``[B, N, 3]``. In 3-D (``climb`` given,
+    section 11) ``[B, N, 5]``: ``[d_c, alpha_c, beta_c / pi, phi_i - phi_bar, (gamma_i - gamma_bar) / pi]``.
     """
     centre = position.mean(-2, keepdim=True)
     to_centre = centre - position
-    d = torch.linalg.vector_norm(to_centre, dim=-1)
+    d = length(to_centre)
     phi_bar = circular_mean(heading, -1, keepdim=True)
-    return torch.stack(
-        ((d / camera_range).clamp_max(1.0), relative_angle(to_centre, heading) / math.pi,
-         wrap(heading - phi_bar) / math.pi),
-        -1,
-    )
+    parts = [(d / camera_range).clamp_max(1.0), relative_angle(to_centre, heading) / math.pi]
+    if climb is not None:
+        parts.append(elevation_of(to_centre[..., 0], to_centre[..., 1], to_centre[..., 2]) / math.pi)
+    parts.append(wrap(heading - phi_bar) / math.pi)
+    if climb is not None:
+        parts.append((climb - climb.mean(-1, keepdim=True)) / math.pi)
+    return torch.stack(parts, -1)
 
 
 def sensor_normals(n_worlds: int, n_uavs: int, n_beams: int, generator: torch.Generator | None = None,
@@ -350,26 +479,41 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
     heading_difference = wrap(neighbours.heading_difference + angle_std * normals["heading_difference"])
     # The measured offsets follow the measured distance and bearing (relative to the true heading).
     angle = bearing + torch.atan2(neighbours.dy, neighbours.dx) - neighbours.bearing
-    noisy = Neighbours(distance, bearing, heading_difference, neighbours.visible,
-                       distance * torch.cos(angle), distance * torch.sin(angle), neighbours.valid)
+    if neighbours.elevation is None:
+        noisy = Neighbours(distance, bearing, heading_difference, neighbours.visible,
+                           distance * torch.cos(angle), distance * torch.sin(angle), neighbours.valid)
+        return beams, noisy
+    # 3-D (section 11): the elevation is measured exactly; the horizontal part follows the noisy distance.
+    flat = distance * torch.cos(neighbours.elevation)
+    noisy = dataclasses.replace(neighbours, distance=distance, bearing=bearing, heading_difference=heading_difference,
+                                dx=flat * torch.cos(angle), dy=flat * torch.sin(angle),
+                                dz=distance * torch.sin(neighbours.elevation))
     return beams, noisy
 
 
 def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
-                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None, rings=None
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
     """Shortest beam's length ``d_scan1`` ``[B, N]`` and its return point minus the UAV's position ``[B, N, 2]``.
 
     Args:
         shortest: :func:`shortest_beams` of ``beams`` if already known.
+        rings: 3-D (section 11): the laser's ring elevations; the offset is then ``[B, N, 3]``.
     """
     d, idx = shortest if shortest is not None else shortest_beams(beams, 1)
     d, idx = d[..., :1], idx[..., :1]
-    angle = heading + beam_offsets(beams.shape[-1], beams.device, beams.dtype)[idx[..., 0]]
-    return d[..., 0], d * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+    if rings is None:
+        angle = heading + beam_offsets(beams.shape[-1], beams.device, beams.dtype)[idx[..., 0]]
+        return d[..., 0], d * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
+    n_beams = beams.shape[-1] // len(rings)
+    angle = heading + beam_offsets(n_beams, beams.device, beams.dtype)[idx[..., 0] % n_beams]
+    cos_e, sin_e = (t[idx[..., 0]] for t in ring_tables(rings, n_beams, beams))
+    return d[..., 0], d * torch.stack((cos_e * torch.cos(angle), cos_e * torch.sin(angle), sin_e), -1)
 
 
 __all__ = [
-    "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "observation_size", "state_size",
+    "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "SIZES_3D", "observation_size", "state_size",
+    "elevation_of", "measure_pairs_3d", "off_axis", "piece_sizes", "planar_entries", "ring_tables",
     "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
     "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "shortest_beams", "smallest",

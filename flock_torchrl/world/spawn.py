@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from ..config.scenario import ConfigError, ScenarioConfig
-from .forest import SpawnError, check_forest, sample_forest
+from .forest import SpawnError, check_forest, lift_drawn, sample_forest
 from .geometry import Obstacles, distance_to_obstacles, pairwise
 
 # Angular resolution of the config-time check over swarm centres (Eq. 30's chi); the check
@@ -53,7 +53,9 @@ _MIN_MOVING_FREE_FRACTION = 0.2
 class Layout:
     """Episode starts of ``B`` worlds: ``goal [B, 2]``, ``position [B, N, 2]``, ``heading [B, N]``,
     moving circles ``moving_position [B, K, 2]`` and ``moving_velocity [B, K, 2]``, drawn
-    obstacles ``drawn_circles [B, C, 3]`` and ``drawn_rectangles [B, R, 4]``."""
+    obstacles ``drawn_circles [B, C, 3]`` and ``drawn_rectangles [B, R, 4]``. In 3-D (section 11)
+    goal and positions are 3-D, the drawn obstacles cylinders ``[B, C, 5]``, boxes ``[B, R, 6]`` and
+    ``drawn_spheres [B, S, 4]`` (2-D: ``[B, 0, 4]``)."""
 
     goal: torch.Tensor
     position: torch.Tensor
@@ -62,10 +64,38 @@ class Layout:
     moving_velocity: torch.Tensor
     drawn_circles: torch.Tensor
     drawn_rectangles: torch.Tensor
+    drawn_spheres: torch.Tensor
+
+
+def static_obstacles(cfg: ScenarioConfig, device=None, dtype=torch.float32) -> Obstacles:
+    """The scenario's fixed obstacles, batch 1: circles and rectangles, in 3-D (section 11)
+    cylinders ``[1, C, 5]``, boxes ``[1, R, 6]`` and spheres ``[1, S, 4]``."""
+    circles = torch.tensor(cfg.circles, dtype=dtype, device=device).reshape(1, -1, cfg.circle_size)
+    rectangles = torch.tensor(cfg.rectangles, dtype=dtype, device=device).reshape(1, -1, cfg.rectangle_size)
+    if cfg.dims != 3:
+        return Obstacles(circles, rectangles)
+    return Obstacles(circles, rectangles, torch.tensor(cfg.spheres, dtype=dtype, device=device).reshape(1, -1, 4))
+
+
+def chi_grid(cfg: ScenarioConfig, steps: int, dtype=torch.float64) -> torch.Tensor:
+    """``steps`` values of Eq. 30's chi covering ``chi_range`` (the full circle: ``k 2 pi / steps``),
+    spaced at most ``2 pi / steps`` apart."""
+    low, high = cfg.chi_range
+    if high - low >= 2 * math.pi - 1e-9:
+        return torch.arange(steps, dtype=dtype) * (2 * math.pi / steps)
+    return low + torch.arange(steps, dtype=dtype) * ((high - low) / (steps - 1))
 
 
 def _uniform(shape, generator, device, low=0.0, high=1.0):
     return low + (high - low) * torch.rand(shape, generator=generator, device=device)
+
+
+def _drawn(shape, generator, device, low: float, high: float) -> torch.Tensor:
+    """Uniform in ``[low, high)``; a range of zero width is its value and draws nothing (section 11:
+    a fixed altitude leaves the generator as the plane leaves it)."""
+    if low == high:
+        return torch.full(shape, float(low), device=device)
+    return _uniform(shape, generator, device, low, high)
 
 
 def _angle(shape, generator, device):
@@ -182,7 +212,8 @@ def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator:
     """
     n = cfg.n_uavs
     cx, cy = cfg.area_center
-    chi = _angle((batch,), generator, device)
+    three_d, static = static.is_3d, static.footprints()  # in 3-D the starts are placed on footprints
+    chi = _uniform((batch,), generator, device, *cfg.chi_range)
     unit = torch.stack((torch.cos(chi), torch.sin(chi)), -1)
     area_center = torch.tensor([cx, cy], device=device)
     swarm_centre = area_center + cfg.d_env * unit
@@ -241,7 +272,18 @@ def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator:
         direction = _angle((batch, k), generator, device)
         moving_velocity = cfg.moving_speed * torch.stack((torch.cos(direction), torch.sin(direction)), -1)
     drawn_circles, drawn_rectangles = sample_forest(cfg, swarm_centre, goal, static, moving_position, generator)
-    return Layout(goal, position, heading, moving_position, moving_velocity, drawn_circles, drawn_rectangles)
+    if not three_d:
+        return Layout(goal, position, heading, moving_position, moving_velocity, drawn_circles, drawn_rectangles,
+                      goal.new_zeros(batch, 0, 4))
+    # 3-D (section 11): the altitudes, after every draw the plane makes.
+    centre_z = _drawn((batch,), generator, device, *cfg.spawn_altitude)
+    goal_z = _drawn((batch,), generator, device, *cfg.goal_altitude)
+    spread = _drawn((batch, n), generator, device, -cfg.spawn_height / 2, cfg.spawn_height / 2)
+    position = torch.cat((position, (centre_z[:, None] + spread)[..., None]), -1)
+    goal = torch.cat((goal, goal_z[:, None]), -1)
+    drawn_circles, drawn_rectangles, drawn_spheres = lift_drawn(cfg, drawn_circles, drawn_rectangles, generator)
+    return Layout(goal, position, heading, moving_position, moving_velocity, drawn_circles, drawn_rectangles,
+                  drawn_spheres)
 
 
 def _moving_conflicts(centres: torch.Tensor, cfg: ScenarioConfig, static: Obstacles, uavs: torch.Tensor,
@@ -261,7 +303,8 @@ def _feasibility_key(cfg: ScenarioConfig) -> tuple:
             tuple(cfg.area_center), tuple(map(tuple, cfg.circles)), tuple(map(tuple, cfg.rectangles)),
             cfg.n_moving, cfg.moving_radius, cfg.moving_clearance, tuple(cfg.moving_box), cfg.goal_radius,
             cfg.random_circles, tuple(cfg.random_circle_radius), cfg.random_rectangles,
-            tuple(cfg.random_rectangle_size), tuple(cfg.random_region), cfg.random_clearance)
+            tuple(cfg.random_rectangle_size), tuple(cfg.random_region), cfg.random_clearance, tuple(cfg.chi_range),
+            cfg.dims, tuple(map(tuple, cfg.spheres)) if cfg.dims == 3 else ())
 
 
 def check_spawn_feasible(cfg: ScenarioConfig) -> None:
@@ -288,9 +331,8 @@ def _check(cfg: ScenarioConfig) -> None:
 
     check_scenario_memory(cfg)  # before the lattices and the forest grid are allocated
     n, s = cfg.n_uavs, cfg.spawn_separation
-    static = Obstacles(torch.tensor(cfg.circles, dtype=torch.float64).reshape(1, -1, 3),
-                       torch.tensor(cfg.rectangles, dtype=torch.float64).reshape(1, -1, 4))
-    chi = torch.arange(_CHECK_ANGLES, dtype=torch.float64) * (2 * math.pi / _CHECK_ANGLES)
+    static = static_obstacles(cfg, dtype=torch.float64).footprints()  # 3-D: footprints (section 11)
+    chi = chi_grid(cfg, _CHECK_ANGLES)
     centre = torch.tensor(cfg.area_center, dtype=torch.float64) + cfg.d_env * torch.stack(
         (torch.cos(chi), torch.sin(chi)), -1)                                         # [A, 2]
     chord = 2 * cfg.d_env * math.sin(math.pi / _CHECK_ANGLES)  # a centre off the grid is this close to one

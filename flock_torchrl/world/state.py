@@ -37,19 +37,23 @@ class StateField:
 
 
 WORLD_STATE: dict[str, StateField] = {
-    "position": StateField(("n_uavs", 2), torch.float32, "UAV positions p_i (m)"),
-    "velocity": StateField(("n_uavs", 2), torch.float32, "UAV velocities v_i (m/s)"),
+    "position": StateField(("n_uavs", "dims"), torch.float32, "UAV positions p_i (m)"),
+    "velocity": StateField(("n_uavs", "dims"), torch.float32, "UAV velocities v_i (m/s)"),
     "heading": StateField(("n_uavs",), torch.float32, "UAV headings phi_i (rad, [-pi, pi))"),
-    "goal": StateField((2,), torch.float32, "the swarm's goal p_g (m)"),
+    "climb": StateField(("n_climb",), torch.float32, "UAV flight-path angles gamma_i (rad; 3-D only, section 11)"),
+    "goal": StateField(("dims",), torch.float32, "the swarm's goal p_g (m)"),
     "moving_position": StateField(("n_moving", 2), torch.float32, "centres of the moving circles (S5; m)"),
     "moving_velocity": StateField(("n_moving", 2), torch.float32, "velocities of the moving circles (m/s)"),
-    "drawn_circles": StateField(("random_circles", 3), torch.float32,
-                                "the episode's drawn circles, [cx, cy, radius] (the forest; m)"),
-    "drawn_rectangles": StateField(("random_rectangles", 4), torch.float32,
-                                   "the episode's drawn rectangles, [cx, cy, width, height] (m)"),
-    "command": StateField(("n_uavs", 2), torch.float32, "the velocity command executed on the last step"),
+    "drawn_circles": StateField(("drawn_cylinders", "circle_size"), torch.float32,
+                                "the episode's drawn circles, [cx, cy, radius] (the forest; m; 3-D: + z_low, z_high)"),
+    "drawn_rectangles": StateField(("random_rectangles", "rectangle_size"), torch.float32,
+                                   "the episode's drawn rectangles, [cx, cy, width, height] (m; 3-D: + z_low, z_high)"),
+    "drawn_spheres": StateField(("drawn_spheres", 4), torch.float32,
+                                "the episode's drawn spheres, [cx, cy, cz, radius] (3-D only; m)"),
+    "command": StateField(("n_uavs", "dims"), torch.float32, "the velocity command executed on the last step"),
     "instinct": StateField(("n_uavs",), torch.bool, "which UAVs flew the instinct's command on the last step"),
-    "prev_action": StateField(("n_uavs", 2), torch.float32, "the last step's action (the smoothness reward's a_t-1)"),
+    "prev_action": StateField(("n_uavs", "dims"), torch.float32,
+                              "the last step's action (the smoothness reward's a_t-1)"),
     "has_prev_action": StateField((), torch.bool, "whether the episode has taken a step (prev_action is set)"),
     "terminated": StateField((1,), torch.bool, "the episode ended: goal reached or crash"),
     "truncated": StateField((1,), torch.bool, "the episode ran out of steps (and did not terminate)"),
@@ -115,13 +119,13 @@ def checked_action(action: Any, cfg: ScenarioConfig, batch: int, device: torch.d
 
     ``done [B]`` (the worlds' done flags) asks for the two checks that read tensor values on
     the host (a device synchronisation): finite values, and no world done; ``None`` skips them."""
-    expected = (batch, cfg.n_uavs, 2)
+    expected = (batch, cfg.n_uavs, cfg.dims)
     if action is None:
         raise ValueError(f"FlockingEnv.step: no {ACTION} entry in the tensordict; expected a float tensor of "
                          f"shape {list(expected)}")
     if tuple(action.shape) != expected:
         raise ValueError(f"FlockingEnv.step: {ACTION} has shape {list(action.shape)}, expected {list(expected)} "
-                         f"(worlds, UAVs, 2)")
+                         f"(worlds, UAVs, {cfg.dims})")
     if not action.is_floating_point():
         raise ValueError(f"FlockingEnv.step: {ACTION} has dtype {action.dtype}, expected a floating point "
                          "tensor (float32; other float types are cast)")

@@ -20,8 +20,10 @@ from typing import Mapping
 import torch
 
 from ..config import ScenarioConfig
-from .dynamics import action_to_command, clip_command, first_order_step, reflect_in_box, update_heading
-from .geometry import Obstacles, circular_mean, nearest_obstacle_distance, wrap
+from ..config.scenario import FULL_HEIGHT
+from .dynamics import (action_to_command, clamp_altitude, clip_command, first_order_step, reflect_in_box,
+                       update_attitude, update_heading)
+from .geometry import Obstacles, circular_mean, length, nearest_obstacle_distance, wrap
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
 from .reward import cohesion_range, total_reward
@@ -33,28 +35,39 @@ Tensors = Mapping[str, torch.Tensor]
 
 
 def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius: float,
-                 drawn_circles: torch.Tensor, drawn_rectangles: torch.Tensor) -> Obstacles:
+                 drawn_circles: torch.Tensor, drawn_rectangles: torch.Tensor,
+                 drawn_spheres: torch.Tensor | None = None) -> Obstacles:
     """Every world's obstacles, in the laser's index order: the fixed circles, the moving circles
     of ``moving_radius`` at ``moving_position [B, K, 2]``, the episode's ``drawn_circles
-    [B, C, 3]``; then the fixed rectangles and the ``drawn_rectangles [B, R, 4]``."""
+    [B, C, 3]``; then the fixed rectangles and the ``drawn_rectangles [B, R, 4]``. In 3-D
+    (``static.spheres`` set; section 11) circles are cylinders ``[.., 5]`` (the moving ones
+    unbounded in height), rectangles boxes ``[.., 6]``, then the fixed and ``drawn_spheres [B, S, 4]``."""
     b = moving_position.shape[0]
     circles = static.circles.expand(b, -1, -1)
     if moving_position.shape[1]:
         moving = torch.cat((moving_position, torch.full_like(moving_position[..., :1], moving_radius)), -1)
+        if static.is_3d:
+            moving = torch.cat((moving, torch.full_like(moving[..., :2], FULL_HEIGHT) * moving.new_tensor([-1.0, 1.0])),
+                               -1)
         circles = torch.cat((circles, moving), 1)
     if drawn_circles.shape[1]:
         circles = torch.cat((circles, drawn_circles), 1)
     rectangles = static.rectangles.expand(b, -1, -1)
     if drawn_rectangles.shape[1]:
         rectangles = torch.cat((rectangles, drawn_rectangles), 1)
-    return Obstacles(circles, rectangles)
+    if not static.is_3d:
+        return Obstacles(circles, rectangles)
+    spheres = static.spheres.expand(b, -1, -1)
+    if drawn_spheres is not None and drawn_spheres.shape[1]:
+        spheres = torch.cat((spheres, drawn_spheres), 1)
+    return Obstacles(circles, rectangles, spheres)
 
 
 def world_obstacles(state: Tensors, static: Obstacles, cfg: ScenarioConfig) -> Obstacles:
     """:func:`obstacles_of` the physical ``state`` (its ``moving_position``, ``drawn_circles``
     and ``drawn_rectangles``)."""
     return obstacles_of(static, state["moving_position"], cfg.moving_radius, state["drawn_circles"],
-                        state["drawn_rectangles"])
+                        state["drawn_rectangles"], state.get("drawn_spheres"))
 
 
 def noise_draws(cfg: ScenarioConfig, n_worlds: int, generator: torch.Generator | None,
@@ -62,7 +75,7 @@ def noise_draws(cfg: ScenarioConfig, n_worlds: int, generator: torch.Generator |
     """The S4 noise of one sensing of ``n_worlds`` worlds (``None`` without noise)."""
     if not cfg.noise:
         return None
-    return sensor_normals(n_worlds, cfg.n_uavs, cfg.n_beams, generator, device)
+    return sensor_normals(n_worlds, cfg.n_uavs, cfg.n_laser, generator, device)
 
 
 def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
@@ -87,14 +100,16 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     same formulas either way, so the same values up to float round-off.
     """
     position, heading, goal = state["position"], state["heading"], state["goal"]
+    climb, rings = (state["climb"], cfg.rings) if cfg.dims == 3 else (None, None)  # 3-D: section 11
     obstacles = world_obstacles(state, static, cfg)
-    beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range, static_shapes)
+    beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range, static_shapes,
+                                      rings)
     # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
     true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov,
-                                                      static_shapes)
+                                                      static_shapes, climb)
     # The critic's camera sees all round: the same measurements, wider visibility.
     all_round = true_neighbours.with_visibility(
-        visibility(true_neighbours.distance, true_neighbours.bearing, cfg.camera_range, math.pi, pairs.valid))
+        visibility(true_neighbours.distance, true_neighbours.cone_angle, cfg.camera_range, math.pi, pairs.valid))
     sensed_beams, neighbours = beams, true_neighbours
     if cfg.noise:
         if normals is None:
@@ -108,22 +123,23 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
     true_shortest = shortest_beams(beams, max(cfg.n_scan, 1)) if cfg.noise else sensed_shortest
-    d_goal, alpha_goal = goal_polar(position, heading, goal)
-    o_g = goal_observation(position, heading, goal, cfg.goal_scale, (d_goal, alpha_goal))
+    polar = goal_polar(position, heading, goal, climb)
+    d_goal, alpha_goal = polar[0], polar[-1]  # 3-D: the off-axis angle, what r_g reads
+    o_g = goal_observation(position, heading, goal, cfg.goal_scale, polar)
     # The actor's slots: the camera's field of view (the paper), or all round (``actor_camera``),
     # the same (noisy) measurements either way; the instinct below keeps the field of view.
     actor_view = neighbours if cfg.actor_camera == "paper" else neighbours.with_visibility(all_round.visible)
     observation = torch.cat(
-        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest),
+        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest, rings),
          camera_observation(actor_view, cfg.n_cam, cfg.camera_range)), -1)
     critic_state = torch.cat(
-        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest),
+        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest, rings),
          camera_observation(all_round, cfg.n_cam, cfg.camera_range),
-         swarm_centre_state(position, heading, cfg.camera_range)), -1)
+         swarm_centre_state(position, heading, cfg.camera_range, climb)), -1)
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
         safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest,
-        mode=cfg.instinct_mode)
+        mode=cfg.instinct_mode, rings=rings)
     return {
         "observation": observation,
         "state": critic_state,
@@ -154,7 +170,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     compiled step's twin.
     """
     if cfg.action_mode == "policy":
-        command = action_to_command(action, state["heading"])
+        command = action_to_command(action, state["heading"], cfg.climb_max)
     else:  # the action is the velocity command (rule-based controllers)
         command = action
     if cfg.instinct:
@@ -164,13 +180,19 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         use = torch.zeros_like(sensed["instinct_triggered"])
     command = clip_command(command, cfg.v_max)
     position, velocity = first_order_step(state["position"], state["velocity"], command, cfg.dt, cfg.tau_v)
-    heading = update_heading(state["heading"], velocity, cfg.heading_speed_threshold)
+    climb = state["climb"]
+    if cfg.dims == 3:  # the ground and ceiling, and the flight-path angle (section 11)
+        position, velocity = clamp_altitude(position, velocity, *cfg.altitude)
+        heading, climb = update_attitude(state["heading"], climb, velocity, cfg.heading_speed_threshold)
+    else:
+        heading = update_heading(state["heading"], velocity, cfg.heading_speed_threshold)
     moving_position, moving_velocity = state["moving_position"], state["moving_velocity"]
     if cfg.n_moving:
         moving_position, moving_velocity = reflect_in_box(
             moving_position + cfg.dt * moving_velocity, moving_velocity, 0.0, cfg.area_size)
-    physical = {"position": position, "heading": heading, "goal": state["goal"], "moving_position": moving_position,
-                "drawn_circles": state["drawn_circles"], "drawn_rectangles": state["drawn_rectangles"]}
+    physical = {"position": position, "heading": heading, "climb": climb, "goal": state["goal"],
+                "moving_position": moving_position, "drawn_circles": state["drawn_circles"],
+                "drawn_rectangles": state["drawn_rectangles"], "drawn_spheres": state["drawn_spheres"]}
     now = sense(physical, static, cfg, normals, static_shapes)
     prev_action = torch.where(state["has_prev_action"][:, None, None], state["prev_action"], action)
     d_collision = now["d_scan1"]
@@ -181,7 +203,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         d_goal=now["d_goal"], d_goal_prev=sensed["d_goal"], alpha_goal=now["alpha_goal"],
         goal_radius=cfg.goal_radius, d_collision=d_collision,
         heading_deviation=wrap(heading - circular_mean(heading, -1, keepdim=True)),
-        d_centre=torch.linalg.vector_norm(position - centre, dim=-1),
+        d_centre=length(position - centre),
         action=action, prev_action=prev_action, reach=cohesion_range(cfg.cohesion_range, position.shape[-2]),
         shape=cfg.collision_shape)
     reached = (now["d_goal"] < cfg.goal_radius).any(-1)
@@ -192,9 +214,10 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         terminated = terminated | (stats["uav"] < cfg.collision_distance)
     episode = update_episode(dict(episode), stats, reached, crashed, cfg.dt, reward.mean(-1))
     new = world_state(
-        position=position, velocity=velocity, heading=heading, goal=state["goal"], moving_position=moving_position,
-        moving_velocity=moving_velocity, drawn_circles=state["drawn_circles"],
-        drawn_rectangles=state["drawn_rectangles"], command=command, instinct=use, prev_action=action,
+        position=position, velocity=velocity, heading=heading, climb=climb, goal=state["goal"],
+        moving_position=moving_position, moving_velocity=moving_velocity, drawn_circles=state["drawn_circles"],
+        drawn_rectangles=state["drawn_rectangles"], drawn_spheres=state["drawn_spheres"], command=command,
+        instinct=use, prev_action=action,
         has_prev_action=torch.ones_like(state["has_prev_action"]), terminated=terminated[:, None],
         truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, now, episode, reward

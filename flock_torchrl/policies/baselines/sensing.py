@@ -1,5 +1,7 @@
 """What a rule-based UAV knows (docs/specification.md section 7): its camera's neighbours and its laser's obstacles.
 
+In 3-D (section 11) the same views hold 3-vectors: the controllers' equations are dimension-free.
+
 Both baselines read only onboard, sensor-limited information: the neighbours its camera sees
 (range ``d_v``, field of view ``phi_v``) with their relative velocities, the laser returns,
 its own velocity and heading, and the goal. This module turns the env's tensordict entries
@@ -19,7 +21,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from ...world.sensors import add_sensor_noise, beam_offsets, observe_neighbours
+from ...world.sensors import add_sensor_noise, beam_offsets, near_neighbours, observe_neighbours, ring_tables
 
 
 @dataclass
@@ -41,7 +43,7 @@ class NeighbourView:
 
 def neighbour_view(position: torch.Tensor, velocity: torch.Tensor, heading: torch.Tensor, camera_range: float,
                    half_fov: float, noise: tuple[float, float] | None = None,
-                   generator: torch.Generator | None = None) -> NeighbourView:
+                   generator: torch.Generator | None = None, climb: torch.Tensor | None = None) -> NeighbourView:
     """The camera's view of the other UAVs plus their relative velocities (specification section 2 camera, specification section 7).
 
     Args:
@@ -50,11 +52,16 @@ def neighbour_view(position: torch.Tensor, velocity: torch.Tensor, heading: torc
         noise: ``(distance_std, angle_std)`` of the S4 camera noise, or ``None``; the bearing
             and distance a UAV measures then carry it, as they do in the env's observation.
         generator: source of that noise.
+        climb: 3-D (docs/specification.md section 11): the flight-path angles ``[B, N]``; positions
+            and velocities are then ``[B, N, 3]`` and the camera is the cone about the direction of flight.
 
     Returns:
         A :class:`NeighbourView`; entries of invisible pairs are zeroed.
     """
-    seen = observe_neighbours(position, heading, camera_range, half_fov)
+    if climb is None:
+        seen = observe_neighbours(position, heading, camera_range, half_fov)
+    else:  # every pair, measured as the world's camera measures it
+        seen = near_neighbours(position, heading, camera_range, half_fov, static_shapes=True, climb=climb)[0]
     if noise is not None:
         dummy_beams = position.new_zeros(position.shape[:-1] + (1,))
         _, seen = add_sensor_noise(dummy_beams, seen, scan_std=0.0, distance_std=noise[0], angle_std=noise[1],
@@ -87,7 +94,7 @@ class ObstacleView:
 
 
 def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch.Tensor,
-                 n_obstacles: int) -> ObstacleView:
+                 n_obstacles: int, rings=None) -> ObstacleView:
     """Nearest laser hit per obstacle (docs/baselines.md, "What a baseline UAV senses").
 
     Beam ``k`` points at ``heading + k * 2 pi / K``. For each obstacle the shortest beam that hit
@@ -97,6 +104,8 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
     Args:
         scan: sensed beam lengths ``[B, N, K]``; scan_obstacle: obstacle index per beam
             ``[B, N, K]`` (-1: none); heading: ``[B, N]``; n_obstacles: ``M``.
+        rings: 3-D (section 11): the laser's ring elevations; beam ``r n_beams + k`` lies on ring
+            ``r``, and offsets and normals are then ``[B, N, M, 3]``.
 
     Returns:
         An :class:`ObstacleView` over ``M`` obstacles (``M = 0`` gives empty tensors).
@@ -110,8 +119,14 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
     else:
         distance, beam = lengths.min(-2)                                    # [B, N, M]
     seen = torch.isfinite(distance)
-    angle = heading[..., None] + beam_offsets(scan.shape[-1], scan.device, scan.dtype)[beam]
-    direction = torch.stack((torch.cos(angle), torch.sin(angle)), -1)       # UAV -> hit, [B, N, M, 2]
+    if rings is None:
+        angle = heading[..., None] + beam_offsets(scan.shape[-1], scan.device, scan.dtype)[beam]
+        direction = torch.stack((torch.cos(angle), torch.sin(angle)), -1)   # UAV -> hit, [B, N, M, 2]
+    else:
+        n_beams = scan.shape[-1] // len(rings)
+        angle = heading[..., None] + beam_offsets(n_beams, scan.device, scan.dtype)[beam % n_beams]
+        cos_e, sin_e = (t[beam] for t in ring_tables(rings, n_beams, scan))
+        direction = torch.stack((cos_e * torch.cos(angle), cos_e * torch.sin(angle), sin_e), -1)
     mask = seen[..., None]
     offset = torch.where(mask, distance.clamp_max(1e9)[..., None] * direction, torch.zeros_like(direction))
     return ObstacleView(distance, offset, torch.where(mask, -direction, torch.zeros_like(direction)), seen)
@@ -162,6 +177,8 @@ class RuleBasedPolicy(TensorDictModuleBase):
         super().__init__()
         self.in_keys = [("agents", "position"), ("agents", "velocity"), ("agents", "heading"),
                         ("agents", "scan"), ("agents", "scan_obstacle"), "goal"]
+        if getattr(env_cfg, "dims", 2) == 3:  # the flight-path angle (section 11)
+            self.in_keys.append(("agents", "climb"))
         self.out_keys = [("agents", "action")]
         self.params, self.env_cfg, self.seed = params, env_cfg, seed
         self.n_obstacles = obstacle_count(env_cfg)
@@ -181,12 +198,15 @@ class RuleBasedPolicy(TensorDictModuleBase):
         position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
         heading = tensordict["agents", "heading"]
         noise, generator = self._camera_noise(position.device)
+        three_d = getattr(cfg, "dims", 2) == 3
+        climb = tensordict["agents", "climb"] if three_d else None
         return Percept(
             velocity=velocity,
             to_goal=tensordict["goal"][:, None, :] - position,
-            neighbours=neighbour_view(position, velocity, heading, cfg.camera_range, cfg.half_fov, noise, generator),
+            neighbours=neighbour_view(position, velocity, heading, cfg.camera_range, cfg.half_fov, noise, generator,
+                                      climb),
             obstacles=nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
-                                   self.n_obstacles),
+                                   self.n_obstacles, cfg.rings if three_d else None),
         )
 
     def command(self, percept: Percept) -> torch.Tensor:
