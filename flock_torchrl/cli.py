@@ -36,6 +36,7 @@ from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
+from .config.compose import check_boolean_overrides
 from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_writable, check_yaml_files,
                      config_folders, sweep_direction, sweep_jobs)
 
@@ -237,6 +238,8 @@ def _task_yaml(cfg: DictConfig) -> str:
 def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") -> Schema:
     """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error); ``key``:
     the setting that chose ``out``."""
+    if "hydra" in cfg:  # a value OmegaConf would have converted: 2 for true
+        check_boolean_overrides(cfg, list(cfg.hydra.overrides.task))
     obj = APPS[app].schema.from_config(cfg)
     check_writable(out, key)
     APPS[app].prepare(obj, out)
@@ -343,8 +346,7 @@ def main(app: str, noted: list[int] | None = None) -> Any:
             raise SystemExit(128 + stopped)
         return result
     except Stopped as stop:
-        print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "
-              "written whole or not at all, and the last checkpoint, if any, is kept", file=sys.stderr, flush=True)
+        print(stop.message(), file=sys.stderr, flush=True)
         raise SystemExit(128 + stop.signum) from None
 
 

@@ -44,10 +44,10 @@ UAV_RADIUS = 0.25  # m: half the collision distance, the body a laser that saw U
 
 # variant -> (scenario overrides, what the actor sees, instinct wrapper mode or None, the wrapper
 # instinct's camera: "own" (the UAV's field of view) or "allround" (360 deg))
-OUTSIDE = {"instinct": False, "action_mode": "velocity"}  # the world of an instinct applied by InstinctWrapper
+OUTSIDE = {"instinct": False, "instinct_mode": "paper", "action_mode": "velocity"}  # the world of an instinct applied by InstinctWrapper
 VARIANTS: dict[str, tuple[dict[str, Any], str, str | None, str]] = {
     "paper": ({}, "own", None, "own"),                             # the paper's instinct, in the world
-    "instinct_off": ({"instinct": False}, "own", None, "own"),
+    "instinct_off": ({"instinct": False, "instinct_mode": "paper"}, "own", None, "own"),
     "tangential_off": ({"tangential": False}, "own", None, "own"),  # the instinct's push radial only (Eq. 28 off)
     "allround_camera": ({}, "allround", None, "own"),              # actor's camera slots from the critic's 360 deg camera
     "wrapped_paper": (OUTSIDE, "own", "paper", "own"),             # control: the same episodes as "paper"

@@ -88,7 +88,7 @@ class Training:
         finished = schedule.finished(self.counters["frames"], self.counters["episodes"], self.counters["seconds"])
         if schedule.done(self.counters, self.evaluations):
             return self._result(self.ckpt_path)  # a finished run resumes to a no-op
-        with Signals() as signals:
+        with Signals(resume_command(self.run_dir)) as signals:
             self._build(payload)
             # Only now, with the checkpoint (if any) known to fit, does the run folder change.
             write_run_config(self.run_dir, self.resolved, hydra_settings())
