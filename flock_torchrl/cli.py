@@ -235,11 +235,24 @@ def _task_yaml(cfg: DictConfig) -> str:
     return OmegaConf.to_yaml(task, resolve=True)
 
 
+def _task_overrides(cfg: DictConfig) -> list[str]:
+    """The command line's overrides of the job ``cfg`` (its own ``hydra`` node, or the running job's)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if "hydra" in cfg:
+        return [str(o) for o in cfg.hydra.overrides.task]
+    return [str(o) for o in HydraConfig.get().overrides.task] if HydraConfig.initialized() else []
+
+
 def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") -> Schema:
     """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error); ``key``:
     the setting that chose ``out``."""
-    if "hydra" in cfg:  # a value OmegaConf would have converted: 2 for true
-        check_boolean_overrides(cfg, list(cfg.hydra.overrides.task))
+    overrides = _task_overrides(cfg)
+    check_boolean_overrides(cfg, overrides)  # a value OmegaConf would have converted: 2 for true
+    if app == "evaluate":  # checkpoint= without policy=: the checkpoint's policy and its world
+        from .run.evaluation import checkpoint_world
+
+        cfg = checkpoint_world(cfg, overrides)
     obj = APPS[app].schema.from_config(cfg)
     check_writable(out, key)
     APPS[app].prepare(obj, out)

@@ -306,3 +306,55 @@ def test_a_populations_memory_estimate_counts_every_member():
     one, ten = train_bytes(quick_config(1)), train_bytes(quick_config(10))
     assert ten["algo.buffer_size"] == 10 * one["algo.buffer_size"]
     assert ten["experiment.num_envs"] == 10 * one["experiment.num_envs"]
+
+
+# ---------------------------------------------------------------------------- a population's checkpoint, used
+@pytest.fixture(scope="module")
+def population_run(tmp_path_factory):
+    """A finished population of two Policy1-G members (seeds 4 and 5): not the apps' default policy."""
+    folder = tmp_path_factory.mktemp("population") / "seed4__population-2"
+    train(quick_config(2, "policy1_g", "seed=4", "reading=paper_fit", "experiment.max_frames=32"), folder)
+    return folder
+
+
+def test_a_populations_checkpoint_loads_one_member_by_name_or_lists_them(population_run, tmp_path):
+    from flock_torchrl import CheckpointError
+    from flock_torchrl.policies.registry import resolve
+
+    with pytest.raises(CheckpointError, match=r"population of 2 policies: choose one with member=0 \(seed 4\), "
+                                              r"member=1 \(seed 5\)$"):
+        load_policy(population_run / "last.pt")
+    payload = load_checkpoint(population_run / "last.pt")
+    policy = load_policy(population_run, member=1)
+    assert policy.flock_meta["seed"] == 5 and policy.flock_meta["policy_id"] == "policy1_g"
+    assert all(torch.equal(v, payload["members"][1]["actor"][n]) for n, v in policy.actor.state_dict().items())
+    with pytest.raises(CheckpointError, match=r"not member=2: choose one of member=0"):
+        load_policy(population_run, member=2)
+    solo = train(quick_config(1, "policy3_g", "experiment.max_frames=16"), tmp_path / "solo")
+    with pytest.raises(CheckpointError, match="one run's policy, not a population's: member=0"):
+        load_policy(solo.checkpoint, member=0)
+    # The registry (evaluate, scaling, reproduce) takes every member, each named, or the one asked for.
+    handles = resolve(population_run / "last.pt", "paper_fit")
+    assert [(h.member, h.seed) for h in handles] == [(0, 4), (1, 5)]
+    assert handles[1].source.endswith("last.pt member=1 (seed 5)")
+    (one,) = resolve(population_run / "last.pt", "paper_fit", member=1)
+    assert (one.member, one.seed) == (1, 5)
+
+
+def test_evaluate_takes_the_policy_and_member_of_a_checkpoint(population_run, tmp_path):
+    """``checkpoint=`` alone: the checkpoint's policy (Policy1-G, not the app's default Policy3-G)
+    and its world; ``member=`` one member, said in the output; a conflicting ``policy=`` is one line."""
+    import json
+
+    from helpers import run_script
+
+    proc = run_script("evaluate.py", f"checkpoint={population_run / 'last.pt'}", "member=1", "episodes=2",
+                      "scenario=s1", f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path)
+    assert "member=1 (seed 5)" in proc.stdout and "[1/1] Policy1-G" in proc.stdout, proc.stdout
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["config"]["policy"]["id"] == "policy1_g" and summary["config"]["scenario"]["fov"] == \
+        pytest.approx(2 * math.pi)
+    proc = run_script("evaluate.py", f"checkpoint={population_run / 'last.pt'}", "policy=policy3_g", "episodes=2",
+                      f"hydra.run.dir={tmp_path / 'conflict'}", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: policy: ") and "leave policy= out" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "conflict").exists()

@@ -203,6 +203,7 @@ class EvaluateConfig(EpisodeOptions, WorldApp):
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: Optional[LearnerConfig] = None     # the policy's learner (not used to evaluate)
     checkpoint: Optional[str] = None         # a checkpoint file instead of the shipped ones
+    member: Optional[int] = None             # of a population's checkpoint, one member (default: every member)
     contender: Any = None                    # a controller of the user's instead (registry.contender_handle)
     max_steps: Optional[int] = None
 
@@ -211,6 +212,10 @@ class EvaluateConfig(EpisodeOptions, WorldApp):
         if self.checkpoint is not None and self.contender is not None:
             reject("contender", "evaluates one controller: give checkpoint= or contender=, not both")
         check_contender("contender", self.contender)
+        if self.member is not None:
+            if self.checkpoint is None:
+                reject("member", "chooses a member of a population's checkpoint: give checkpoint= too")
+            count("member", self.member, 0, MAX_POPULATION - 1)
         if self.max_steps is not None:
             count("max_steps", self.max_steps, 1, 10**7)
         fields = dict(super().checked_fields(p))  # the run options, then the world

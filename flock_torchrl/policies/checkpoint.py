@@ -165,6 +165,36 @@ def _version_hint(found: object) -> str:
     return f"it was written by an older flock_torchrl (format v{version}; this one reads v{FORMAT_VERSION})"
 
 
+def members_of(payload: dict[str, Any]) -> list[dict[str, Any]]:
+    """A population checkpoint's members (each a policy: ``meta``, ``actor``, ...); empty for one run's."""
+    members = payload.get("members")
+    return list(members) if isinstance(members, list) else []
+
+
+def member_list(payload: dict[str, Any]) -> str:
+    """``member=0 (seed 4), member=1 (seed 5)``: how to choose a population's members."""
+    return ", ".join(f"member={k} (seed {m.get('seed', '?')})" for k, m in enumerate(members_of(payload)))
+
+
+def policy_of(payload: dict[str, Any], path: str | os.PathLike, member: int | None = None) -> dict[str, Any]:
+    """The policy a checkpoint holds (its ``meta`` and ``actor``, ...): of a population's,
+    member ``member``'s, which must then be given (a :class:`CheckpointError` lists them);
+    ``member`` of a single run's checkpoint is refused."""
+    members = members_of(payload)
+    if not members:
+        if member is not None:
+            raise CheckpointError(f"{path} holds one run's policy, not a population's: member={member} does not "
+                                  "apply (leave it out)")
+        return payload
+    if member is None:
+        raise CheckpointError(f"{path} holds a population of {len(members)} policies: choose one with "
+                              f"{member_list(payload)}")
+    if isinstance(member, bool) or not isinstance(member, int) or not 0 <= member < len(members):
+        raise CheckpointError(f"{path} holds {len(members)} population members, not member={member!r}: choose "
+                              f"one of {member_list(payload)}")
+    return members[member]
+
+
 def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike, member: int | None = None) -> Path:
     """Write the slim, shippable part of a training checkpoint (:func:`policy_payload`)."""
     return save_checkpoint(policy_payload(checkpoint, member), destination, kind="policy")
@@ -176,10 +206,7 @@ def policy_payload(checkpoint: str | os.PathLike, member: int | None = None) -> 
     checkpoint, member ``member``'s (each member holds those keys itself)."""
     payload = load_checkpoint(checkpoint, kind="training")
     if member is not None:
-        members = payload.get("members") or []
-        if not 0 <= member < len(members):
-            raise CheckpointError(f"{checkpoint} holds {len(members)} population member(s), not member {member}")
-        payload = members[member]
+        payload = policy_of(payload, checkpoint, member)
     return {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
             if key in payload}
 
@@ -222,18 +249,23 @@ class SharedPolicy(TensorDictModuleBase):
         return self.actor(tensordict)
 
 
-def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu") -> SharedPolicy:
+def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu", member: int | None = None
+                ) -> SharedPolicy:
     """A trained policy from a checkpoint (slim or training, or a run folder), ready for
     ``env.rollout``. Build its env in its own world::
 
         policy = load_policy("checkpoints/paper_fit/policy3_g/seed0.pt")
         env = FlockingEnv("s2", num_envs=8, reading=policy.flock_meta["reading"],
                           policy_id=policy.flock_meta["policy_id"])
+
+    A population's checkpoint (``population=K``) holds K policies: ``member=k`` chooses one
+    (``load_policy(run, member=1)``: seed ``seed + 1``); without it the error lists them.
     """
-    payload = load_checkpoint(path)
-    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device, origin=str(resolve_path(path)))
+    origin = str(resolve_path(path))
+    payload = policy_of(load_checkpoint(path), origin, member)
+    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device, origin=origin)
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
-           "policy_payload",
+           "member_list", "members_of", "policy_of", "policy_payload",
            "resolve_path", "save_checkpoint"]
