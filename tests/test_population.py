@@ -358,3 +358,39 @@ def test_evaluate_takes_the_policy_and_member_of_a_checkpoint(population_run, tm
                       f"hydra.run.dir={tmp_path / 'conflict'}", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and proc.stderr.startswith("error: policy: ") and "leave policy= out" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "conflict").exists()
+
+
+def test_a_non_finite_member_in_a_populations_checkpoint_is_refused_naming_field_member_and_file(
+        population_run, tmp_path):
+    """Digest-valid, but member 1's stacked actor weights (or its slim actor) are NaN: refused in
+    one line naming the field, the member and its seed, and the file, before anything is built."""
+    from flock_torchrl import CheckpointError
+    from flock_torchrl.policies.checkpoint import save_checkpoint
+
+    payload = load_checkpoint(population_run / "last.pt")
+    params = payload["learner"]["params"]["actor_network_params"]
+    name, weight = next((k, v) for k, v in _leaves(params) if v.is_floating_point())
+    weight[1].fill_(float("nan"))
+    bad = save_checkpoint({k: v for k, v in payload.items() if k != "kind"}, tmp_path / "run" / "last.pt",
+                          kind="training")
+    with pytest.raises(CheckpointError) as info:
+        load_checkpoint(bad)
+    message = str(info.value)
+    assert message == f"{bad}: learner.params.actor_network_params.{name} holds NaN or infinite values for " \
+                      "member 1 (seed 5)"
+    with pytest.raises(CheckpointError, match="member 1 \\(seed 5\\)"):  # a resume is refused before it starts
+        train(quick_config(2, "policy1_g", "seed=4", "reading=paper_fit", "resume=true"), tmp_path / "run")
+    payload = load_checkpoint(population_run / "last.pt")
+    first = next(iter(payload["members"][1]["actor"]))
+    payload["members"][1]["actor"][first].fill_(float("inf"))
+    bad = save_checkpoint({k: v for k, v in payload.items() if k != "kind"}, tmp_path / "bad.pt", kind="training")
+    with pytest.raises(CheckpointError, match=rf"^{bad}: members\[1\]\.actor\.{first} \(member 1, seed 5\) holds NaN"):
+        load_checkpoint(bad)
+
+
+def _leaves(tree, prefix=""):
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            yield from _leaves(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value

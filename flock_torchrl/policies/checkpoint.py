@@ -22,7 +22,7 @@ import os
 import pickle
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import torch
 from tensordict import TensorDictBase
@@ -117,6 +117,8 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     if missing:
         raise CheckpointError(f"{path} is a {envelope.get('kind')} checkpoint without {', '.join(missing)}: it "
                               "cannot be used (written by something else than flock_torchrl's trainer?)")
+    if envelope["kind"] == "training":
+        check_training_fields(payload, path)
     check_policy_fields(payload, path)
     payload["kind"] = envelope["kind"]
     return payload
@@ -150,6 +152,38 @@ def check_policy_fields(payload: dict[str, Any], path: str | os.PathLike) -> Non
             raise CheckpointError(f"{path}: actor.{name} is {type(value).__name__}, not a tensor")
         if value.is_floating_point() and not bool(torch.isfinite(value).all()):
             raise CheckpointError(f"{path}: actor.{name} holds NaN or infinite weights")
+
+
+def _non_finite(tree: Any, name: str) -> Iterator[tuple[str, torch.Tensor]]:
+    """``(dotted name, tensor)`` of every floating tensor in ``tree`` (dicts, lists) that holds
+    NaN or an infinity."""
+    if isinstance(tree, torch.Tensor):
+        if tree.is_floating_point() and not bool(torch.isfinite(tree).all()):
+            yield name, tree
+    elif isinstance(tree, dict):
+        for key, value in tree.items():
+            yield from _non_finite(value, f"{name}.{key}")
+    elif isinstance(tree, (list, tuple)):
+        for i, value in enumerate(tree):
+            yield from _non_finite(value, f"{name}[{i}]")
+
+
+def check_training_fields(payload: dict[str, Any], path: str | os.PathLike) -> None:
+    """Refuse, naming the field (and, of a population's, the member and its seed), a training
+    checkpoint whose learner (networks, optimiser state) or members' actors are not finite: a
+    run resumed from it would fail in its first step, far from the cause."""
+    members = members_of(payload)
+    seeds = [m.get("seed", "?") if isinstance(m, dict) else "?" for m in members]
+    for k, member in enumerate(members):
+        actor = member.get("actor") if isinstance(member, dict) else None
+        for name, _ in _non_finite(actor, f"members[{k}].actor"):
+            raise CheckpointError(f"{path}: {name} (member {k}, seed {seeds[k]}) holds NaN or infinite weights")
+    for name, tensor in _non_finite(payload.get("learner"), "learner"):
+        if members and tensor.dim() and tensor.shape[0] == len(members):  # stacked: one row per member
+            bad = [k for k in range(len(members)) if not bool(torch.isfinite(tensor[k]).all())]
+            who = ", ".join(f"member {k} (seed {seeds[k]})" for k in bad)
+            raise CheckpointError(f"{path}: {name} holds NaN or infinite values for {who}")
+        raise CheckpointError(f"{path}: {name} holds NaN or infinite values")
 
 
 def _version_hint(found: object) -> str:
