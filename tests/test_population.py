@@ -313,8 +313,11 @@ def test_a_populations_memory_estimate_counts_every_member():
 def population_run(tmp_path_factory):
     """A finished population of two Policy1-G members (seeds 4 and 5): not the apps' default policy."""
     folder = tmp_path_factory.mktemp("population") / "seed4__population-2"
-    train(quick_config(2, "policy1_g", "seed=4", "reading=paper_fit", "experiment.max_frames=32"), folder)
+    train(quick_config(2, "policy1_g", *POPULATION_RUN, "experiment.max_frames=96"), folder)
     return folder
+
+
+POPULATION_RUN = ["seed=4", "reading=paper_fit", "scenario.max_steps=12"]
 
 
 def test_a_populations_checkpoint_loads_one_member_by_name_or_lists_them(population_run, tmp_path):
@@ -379,7 +382,7 @@ def test_a_non_finite_member_in_a_populations_checkpoint_is_refused_naming_field
     assert message == f"{bad}: learner.params.actor_network_params.{name} holds NaN or infinite values for " \
                       "member 1 (seed 5)"
     with pytest.raises(CheckpointError, match="member 1 \\(seed 5\\)"):  # a resume is refused before it starts
-        train(quick_config(2, "policy1_g", "seed=4", "reading=paper_fit", "resume=true"), tmp_path / "run")
+        train(quick_config(2, "policy1_g", *POPULATION_RUN, "resume=true"), tmp_path / "run")
     payload = load_checkpoint(population_run / "last.pt")
     first = next(iter(payload["members"][1]["actor"]))
     payload["members"][1]["actor"][first].fill_(float("inf"))
@@ -394,3 +397,18 @@ def _leaves(tree, prefix=""):
             yield from _leaves(value, f"{prefix}{key}.")
         else:
             yield f"{prefix}{key}", value
+
+
+def test_a_resume_without_a_members_episode_log_is_refused_naming_it(population_run, tmp_path):
+    import shutil
+
+    from flock_torchrl import CheckpointError
+
+    run = tmp_path / "run"
+    shutil.copytree(population_run, run)
+    assert load_checkpoint(run / "last.pt")["members"][1]["episodes_seen"] > 0
+    (run / "seed5" / "episodes.csv").unlink()
+    before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
+    with pytest.raises(CheckpointError, match=rf"^{run / 'seed5' / 'episodes.csv'} is missing, but the checkpoint"):
+        train(quick_config(2, "policy1_g", *POPULATION_RUN, "experiment.max_frames=128", "resume=true"), run)
+    assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # nothing was changed

@@ -265,3 +265,15 @@ def test_logs_after_kill_and_resume_equal_an_uninterrupted_runs(tmp_path):
     assert (whole / "episodes.csv").read_text() == (folder / "episodes.csv").read_text()
     saved = yaml.safe_load((folder / "config.yaml").read_text())
     assert saved["experiment"]["max_frames"] == 2400
+
+
+def test_a_resume_without_its_episode_log_is_refused_naming_it(tmp_path):
+    """The log a resume continues is gone while the checkpoint counts episodes: one line naming
+    the file, nothing changed (restarting it would leave a curve shorter than the counters)."""
+    run = train(tiny("experiment.max_frames=96", "logger=none", "scenario.max_steps=12"), tmp_path / "run")
+    assert run.episodes > 0
+    (tmp_path / "run" / "episodes.csv").unlink()
+    with pytest.raises(CheckpointError, match=rf"^{tmp_path / 'run' / 'episodes.csv'} is missing, but the "
+                                              rf"checkpoint in {tmp_path / 'run'} counts {run.episodes} episodes"):
+        train(tiny("experiment.max_frames=128", "logger=none", "scenario.max_steps=12", "resume=true"), tmp_path / "run")
+    assert not (tmp_path / "run" / "episodes.csv").exists()
