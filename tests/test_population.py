@@ -412,3 +412,21 @@ def test_a_resume_without_a_members_episode_log_is_refused_naming_it(population_
     with pytest.raises(CheckpointError, match=rf"^{run / 'seed5' / 'episodes.csv'} is missing, but the checkpoint"):
         train(quick_config(2, "policy1_g", *POPULATION_RUN, "experiment.max_frames=128", "resume=true"), run)
     assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # nothing was changed
+
+
+def test_a_populations_scalars_are_logged_per_member_and_as_the_solo_runs_names(tmp_path):
+    """Each member's scalars under seed<s>/, their mean under the solo run's train/* names, the
+    loop's speed under perf/frames_per_s as a solo run logs it (and perf/member_* as before)."""
+    import csv
+
+    train(quick_config(2, "policy3_g", *POPULATION_RUN, "logger=csv", "experiment.max_frames=96"), tmp_path / "run")
+    root = tmp_path / "run" / "logs" / "scalars"
+    logged = {p.relative_to(root).with_suffix("").as_posix() for p in root.rglob("*.csv")}
+    losses = {name.split("/", 2)[2] for name in logged if name.startswith("seed4/train/loss")}
+    assert losses and {"episode_reward", "success_rate"} <= {n.split("/", 2)[2] for n in logged
+                                                             if n.startswith("seed5/train/")}
+    for name in [*losses, "episode_reward", "success_rate"]:
+        assert f"train/{name}" in logged, name
+        last = lambda key: float(list(csv.reader((root / f"{key}.csv").open()))[-1][1])  # noqa: E731
+        assert last(f"train/{name}") == pytest.approx((last(f"seed4/train/{name}") + last(f"seed5/train/{name}")) / 2)
+    assert {"perf/frames_per_s", "perf/updates_per_s", "perf/member_frames_per_s"} <= logged
