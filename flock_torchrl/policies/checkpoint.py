@@ -238,7 +238,11 @@ def policy_payload(checkpoint: str | os.PathLike, member: int | None = None) -> 
     """The slim, shippable part of a training checkpoint (actor, metadata, config, counters,
     evaluations, training curve; no optimiser, replay buffer or env state); of a population's
     checkpoint, member ``member``'s (each member holds those keys itself)."""
-    payload = load_checkpoint(checkpoint, kind="training")
+    return slim_payload(load_checkpoint(checkpoint, kind="training"), checkpoint, member)
+
+
+def slim_payload(payload: dict[str, Any], checkpoint: str | os.PathLike, member: int | None = None) -> dict[str, Any]:
+    """:func:`policy_payload` of a training checkpoint already read (``checkpoint``: its path, for errors)."""
     if member is not None:
         payload = policy_of(payload, checkpoint, member)
     return {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
@@ -301,5 +305,5 @@ def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu", mem
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
-           "member_list", "members_of", "policy_of", "policy_payload",
+           "member_list", "members_of", "policy_of", "policy_payload", "slim_payload",
            "resolve_path", "save_checkpoint"]
