@@ -29,7 +29,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from ..config import ScenarioConfig, saved_scenario
-from ..io import write_bytes
+from ..io import atomic_write
 from ..world.sensors import observation_size
 from .models import ACTION, OBS, actor_of_sizes
 
@@ -53,15 +53,27 @@ def _serialise(obj: Any) -> bytes:
 
 
 def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike, kind: str) -> Path:
-    """Write ``payload`` as a ``kind`` checkpoint, atomically, with its digest."""
+    """Write ``payload`` as a ``kind`` checkpoint, atomically, with its digest.
+
+    Memory: the payload is serialised once into memory (its digest is taken there); the
+    envelope around it is streamed to the temporary file through an open handle, without
+    another copy of those bytes (torch names the archive inside after a file *path*, so the
+    handle, like a buffer, keeps every export's bytes the same wherever it is written)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    data = _serialise(payload)
-    envelope = {"format": FORMAT, "kind": kind, "sha256": hashlib.sha256(data).hexdigest(),
-                "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
-    # Serialised in memory, not to the temporary file: torch names the archive inside after the
-    # file it writes, so writing the temporary file directly would make every export's bytes differ.
-    return write_bytes(path, _serialise(envelope))
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    view = buffer.getbuffer()  # the bytes in place, no copy
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch warns that the tensor shares a writable buffer: it is only read
+        data = torch.frombuffer(view, dtype=torch.uint8)
+    envelope = {"format": FORMAT, "kind": kind, "sha256": hashlib.sha256(view).hexdigest(), "payload": data}
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as handle:
+            torch.save(envelope, handle)
+
+    return atomic_write(path, write)
 
 
 def resolve_path(path: str | os.PathLike) -> Path:
