@@ -36,6 +36,7 @@ from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
+from .config.apps import DiagnoseConfig
 from .config.compose import check_boolean_overrides
 from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_writable, check_yaml_files,
                      config_folders, sweep_direction, sweep_jobs)
@@ -212,6 +213,20 @@ def _run_tune(cfg: TuneConfig, out: Path) -> None:
     tune_app(cfg, out, log=_say)
 
 
+# -- diagnose
+def _prepare_diagnose(cfg: Any, out: Path) -> None:
+    from .report.diagnosis import check_diagnosis
+
+    check_diagnosis(cfg)
+
+
+def _run_diagnose(cfg: Any, out: Path) -> None:
+    from .report.diagnosis import diagnose_app
+
+    _set_threads(cfg.threads)
+    diagnose_app(cfg, out, log=_say)
+
+
 APPS: dict[str, App] = {
     "train": App(TrainConfig, _prepare_train, _run_train),
     "evaluate": App(EvaluateConfig, _prepare_evaluate, _run_evaluate),
@@ -220,6 +235,7 @@ APPS: dict[str, App] = {
     "scaling": App(ScalingConfig, _prepare_scaling, _run_scaling),
     "ship": App(ShipConfig, _prepare_ship, _run_ship),
     "tune_baselines": App(TuneConfig, _prepare_tune, _run_tune),
+    "diagnose": App(DiagnoseConfig, _prepare_diagnose, _run_diagnose),
 }
 assert set(APPS) == set(APP_SCHEMAS)
 
@@ -398,6 +414,11 @@ def tune_baselines_main() -> Any:
     return main("tune_baselines")
 
 
-__all__ = ["APPS", "App", "AppError", "PreRunCheck", "checked", "evaluate_main", "fail",
+def diagnose_main() -> Any:
+    """``scripts/diagnose.py``."""
+    return main("diagnose")
+
+
+__all__ = ["APPS", "App", "AppError", "PreRunCheck", "checked", "diagnose_main", "evaluate_main", "fail",
            "figures_main", "main", "reproduce_main", "scaling_main", "ship_main", "sweep_jobs",
            "train_main", "tune_baselines_main"]
