@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from .io import write_failure
 from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
@@ -260,6 +260,18 @@ def _task_overrides(cfg: DictConfig) -> list[str]:
     return [str(o) for o in HydraConfig.get().overrides.task] if HydraConfig.initialized() else []
 
 
+def _adopt_checkpoint_world(config: DictConfig) -> None:
+    """``checkpoint=`` without ``policy=``: the run's config (which Hydra then runs, and names its
+    output folder from) takes the checkpoint's policy and world (:func:`checkpoint_world`)."""
+    from .run.evaluation import checkpoint_world
+
+    world = checkpoint_world(config, _task_overrides(config))
+    if world is not config:
+        with read_write(config), open_dict(config):
+            config.policy = world.policy
+            config.scenario = world.scenario
+
+
 def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") -> Schema:
     """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error); ``key``:
     the setting that chose ``out``."""
@@ -305,6 +317,8 @@ class PreRunCheck(Callback):
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         if self.app == "train":
             _guard(lambda: check_resume_folder(config))
+        if self.app == "evaluate":  # the job's config and folder name the checkpoint's policy
+            _guard(lambda: _adopt_checkpoint_world(config), config)
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
         APP_SIGNALS.arm()

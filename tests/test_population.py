@@ -352,11 +352,17 @@ def test_evaluate_takes_the_policy_and_member_of_a_checkpoint(population_run, tm
     from helpers import run_script
 
     proc = run_script("evaluate.py", f"checkpoint={population_run / 'last.pt'}", "member=1", "episodes=2",
-                      "scenario=s1", f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path)
+                      "scenario=s1", cwd=tmp_path)
     assert "member=1 (seed 5)" in proc.stdout and "[1/1] Policy1-G" in proc.stdout, proc.stdout
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    (out,) = (tmp_path / "outputs" / "evaluate" / "paper_fit" / "policy1_g").iterdir()  # named after its policy
+    summary = json.loads((out / "summary.json").read_text())
     assert summary["config"]["policy"]["id"] == "policy1_g" and summary["config"]["scenario"]["fov"] == \
         pytest.approx(2 * math.pi)
+    from flock_torchrl.config import app_config
+    from flock_torchrl.run.evaluation import evaluated_handles
+
+    every = evaluated_handles(app_config("evaluate", policy="policy1_g", checkpoint=str(population_run / "last.pt")))
+    assert [h.source.rsplit(" ", 3)[1:] for h in every] == [["member=0", "(seed", "4)"], ["member=1", "(seed", "5)"]]
     proc = run_script("evaluate.py", f"checkpoint={population_run / 'last.pt'}", "policy=policy3_g", "episodes=2",
                       f"hydra.run.dir={tmp_path / 'conflict'}", cwd=tmp_path, check=False)
     assert proc.returncode == 2 and proc.stderr.startswith("error: policy: ") and "leave policy= out" in proc.stderr
