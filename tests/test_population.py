@@ -436,3 +436,13 @@ def test_a_populations_scalars_are_logged_per_member_and_as_the_solo_runs_names(
         last = lambda key: float(list(csv.reader((root / f"{key}.csv").open()))[-1][1])  # noqa: E731
         assert last(f"train/{name}") == pytest.approx((last(f"seed4/train/{name}") + last(f"seed5/train/{name}")) / 2)
     assert {"perf/frames_per_s", "perf/updates_per_s", "perf/member_frames_per_s"} <= logged
+
+
+def test_scaling_names_the_member_of_a_population_it_flies(population_run, tmp_path):
+    from flock_torchrl.config import app_config
+    from flock_torchrl.report.scaling import scaling
+
+    cfg = app_config("scaling", reading="paper_fit", policy_name="policy_ma", others=[str(population_run / "last.pt")],
+                     sizes=[3], episodes=1)
+    rows = scaling(cfg, tmp_path, log=lambda _: None)
+    assert rows[-1]["policy"] == "Policy1-G [tiny, seed 4, member=0 of a population]"
