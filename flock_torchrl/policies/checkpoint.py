@@ -62,7 +62,7 @@ def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike, kind: str)
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     buffer = io.BytesIO()
-    torch.save(payload, buffer)
+    _save(payload, buffer)
     view = buffer.getbuffer()  # the bytes in place, no copy
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # torch warns that the tensor shares a writable buffer: it is only read
@@ -71,9 +71,24 @@ def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike, kind: str)
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as handle:
-            torch.save(envelope, handle)
+            _save(envelope, handle)
 
     return atomic_write(path, write)
+
+
+def _save(obj: Any, handle: Any) -> None:
+    """``torch.save`` into an open handle; a write or an allocation that fails inside it comes
+    out as itself (``OSError``: a full disk, a file-size limit; ``MemoryError``), not as the
+    ``RuntimeError`` torch's archive writer raises when it is closed after it."""
+    try:
+        torch.save(obj, handle)
+    except RuntimeError as exc:
+        cause, seen = exc.__context__, 0
+        while cause is not None and seen < 8:
+            if isinstance(cause, (OSError, MemoryError)):
+                raise cause from None
+            cause, seen = cause.__cause__ or cause.__context__, seen + 1
+        raise
 
 
 def resolve_path(path: str | os.PathLike) -> Path:
