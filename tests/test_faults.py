@@ -145,6 +145,26 @@ def test_a_checkpoint_holds_only_the_replay_rows_it_filled(tmp_path):
     assert {v.shape[0] for v in storage["_storage"].values() if isinstance(v, torch.Tensor)} == {rows}
 
 
+@pytest.mark.slow
+def test_a_checkpoints_write_holds_one_copy_of_its_payload():
+    """The estimate's share of a checkpoint's write (the filled rows' copy and their serialised
+    bytes) bounds what the write holds: measured, the peak beyond the payload is one copy of it
+    (the envelope is streamed to the file, not serialised a second time in memory)."""
+    code = """
+import tempfile, torch
+from flock_torchrl.policies.checkpoint import save_checkpoint
+def status(field):
+    return next(int(l.split()[1]) * 1024 for l in open("/proc/self/status") if l.startswith(field))
+blob = torch.ones(50 * 2**20)  # 200 MiB
+open("/proc/self/clear_refs", "w").write("5")  # the peak (VmHWM) starts again from here
+base = status("VmRSS:")
+save_checkpoint({"buffer": blob}, tempfile.mktemp(suffix=".pt"), "training")
+print((status("VmHWM:") - base) / blob.nbytes)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=120)
+    assert 0.9 < float(out.stdout) < 1.2, out
+
+
 OUT_OF_MEMORY = """
 import resource, sys, torch
 from pathlib import Path
