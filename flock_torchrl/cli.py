@@ -29,13 +29,15 @@ from pathlib import Path
 from typing import Any, Callable
 
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from .io import shown, write_failure
 from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
+from .config.apps import DiagnoseConfig
+from .config.compose import check_boolean_overrides
 from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_writable, check_yaml_files,
                      composed_yaml_files, config_folders, sweep_direction, sweep_jobs)
 
@@ -214,6 +216,20 @@ def _run_tune(cfg: TuneConfig, out: Path) -> None:
     tune_app(cfg, out, log=_say)
 
 
+# -- diagnose
+def _prepare_diagnose(cfg: Any, out: Path) -> None:
+    from .report.diagnosis import check_diagnosis
+
+    check_diagnosis(cfg)
+
+
+def _run_diagnose(cfg: Any, out: Path) -> None:
+    from .report.diagnosis import diagnose_app
+
+    _set_threads(cfg.threads)
+    diagnose_app(cfg, out, log=_say)
+
+
 APPS: dict[str, App] = {
     "train": App(TrainConfig, _prepare_train, _run_train),
     "evaluate": App(EvaluateConfig, _prepare_evaluate, _run_evaluate),
@@ -222,6 +238,7 @@ APPS: dict[str, App] = {
     "scaling": App(ScalingConfig, _prepare_scaling, _run_scaling),
     "ship": App(ShipConfig, _prepare_ship, _run_ship),
     "tune_baselines": App(TuneConfig, _prepare_tune, _run_tune),
+    "diagnose": App(DiagnoseConfig, _prepare_diagnose, _run_diagnose),
 }
 assert set(APPS) == set(APP_SCHEMAS)
 
@@ -237,9 +254,36 @@ def _task_yaml(cfg: DictConfig) -> str:
     return OmegaConf.to_yaml(task, resolve=True)
 
 
+def _task_overrides(cfg: DictConfig) -> list[str]:
+    """The command line's overrides of the job ``cfg`` (its own ``hydra`` node, or the running job's)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if "hydra" in cfg:
+        return [str(o) for o in cfg.hydra.overrides.task]
+    return [str(o) for o in HydraConfig.get().overrides.task] if HydraConfig.initialized() else []
+
+
+def _adopt_checkpoint_world(config: DictConfig) -> None:
+    """``checkpoint=`` without ``policy=``: the run's config (which Hydra then runs, and names its
+    output folder from) takes the checkpoint's policy and world (:func:`checkpoint_world`)."""
+    from .run.evaluation import checkpoint_world
+
+    world = checkpoint_world(config, _task_overrides(config))
+    if world is not config:
+        with read_write(config), open_dict(config):
+            config.policy = world.policy
+            config.scenario = world.scenario
+
+
 def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") -> Schema:
     """``cfg`` as the app's checked schema object, prepared for ``out`` (or the error); ``key``:
     the setting that chose ``out``."""
+    overrides = _task_overrides(cfg)
+    check_boolean_overrides(cfg, overrides)  # a value OmegaConf would have converted: 2 for true
+    if app == "evaluate":  # checkpoint= without policy=: the checkpoint's policy and its world
+        from .run.evaluation import checkpoint_world
+
+        cfg = checkpoint_world(cfg, overrides)
     obj = APPS[app].schema.from_config(cfg)
     check_writable(out, key)
     APPS[app].prepare(obj, out)
@@ -276,6 +320,8 @@ class PreRunCheck(Callback):
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         if self.app == "train":
             _guard(lambda: check_resume_folder(config))
+        if self.app == "evaluate":  # the job's config and folder name the checkpoint's policy
+            _guard(lambda: _adopt_checkpoint_world(config), config)
         out = Path(str(config.hydra.run.dir))
         _CHECKED[_task_yaml(config)] = _guard(lambda: checked(self.app, config, out), config)
         APP_SIGNALS.arm()
@@ -346,8 +392,7 @@ def main(app: str, noted: list[int] | None = None) -> Any:
             raise SystemExit(128 + stopped)
         return result
     except Stopped as stop:
-        print(f"stopped by {stop} outside a training loop (starting, checking, or finishing): files are "
-              "written whole or not at all, and the last checkpoint, if any, is kept", file=sys.stderr, flush=True)
+        print(stop.message(), file=sys.stderr, flush=True)
         raise SystemExit(128 + stop.signum) from None
 
 
@@ -386,6 +431,11 @@ def tune_baselines_main() -> Any:
     return main("tune_baselines")
 
 
-__all__ = ["APPS", "App", "AppError", "PreRunCheck", "checked", "evaluate_main", "fail",
+def diagnose_main() -> Any:
+    """``scripts/diagnose.py``."""
+    return main("diagnose")
+
+
+__all__ = ["APPS", "App", "AppError", "PreRunCheck", "checked", "diagnose_main", "evaluate_main", "fail",
            "figures_main", "main", "reproduce_main", "scaling_main", "ship_main", "sweep_jobs",
            "train_main", "tune_baselines_main"]

@@ -145,3 +145,32 @@ def test_check_returns_a_checked_copy_and_leaves_the_object_as_it_was():
     assert FlockingEnv(checked, num_envs=1).cfg is checked
     with pytest.raises(TypeError, match="scenario_config"):
         FlockingEnv(fields, num_envs=1)                 # a mapping goes through scenario_config(mapping)
+
+
+@pytest.mark.parametrize("fields", [dict(tangential=2), dict(instinct=1), dict(noise="yes")])
+def test_booleans_are_booleans(fields):
+    """OmegaConf takes 2, 1 or "yes" for true; a boolean field refuses them, by every door."""
+    (name, value), = fields.items()
+    with pytest.raises(ConfigError, match=rf"^scenario\.{name}: must be true or false, got {value!r}"):
+        scenario_config("train", **fields)
+    raw = ScenarioConfig(**{**dataclasses.asdict(scenario_config("train")), **fields})
+    with pytest.raises(ConfigError, match=rf"^scenario\.{name}: must be true or false"):
+        raw.check()
+
+
+def test_boolean_overrides_are_booleans():
+    from flock_torchrl.config import compose
+
+    with pytest.raises(ConfigError, match=r"^scenario\.tangential: must be true or false, got 2$"):
+        compose("train", ["scenario.tangential=2"])
+    with pytest.raises(ConfigError, match=r"^progress: must be true or false, got on$"):
+        compose("train", ["progress=on"])
+    assert compose("train", ["scenario.tangential=false", "progress=True"]).scenario.tangential is False
+
+
+def test_an_instinct_mode_without_the_instinct_is_refused_naming_both_keys():
+    with pytest.raises(ConfigError, match=r"^scenario\.instinct_mode: 'saturated' .*scenario\.instinct=false") as err:
+        scenario_config("train", instinct=False, instinct_mode="saturated")
+    assert err.value.also == ("scenario.instinct",)
+    assert scenario_config("train", instinct=True, instinct_mode="saturated").instinct_mode == "saturated"
+    assert scenario_config("train", instinct=False, instinct_mode="paper").instinct is False

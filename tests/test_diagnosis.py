@@ -1,4 +1,4 @@
-"""Crash forensics and evaluation-time ablations (flock_torchrl/report/diagnosis.py, issue 32).
+"""Crash forensics and evaluation-time ablations (flock_torchrl/report/diagnosis.py, scripts/diagnose.py).
 
 Hand-built scenes with answers worked out on paper (arithmetic in the comments), and one
 control: the paper's instinct applied by the wrapper gives the built-in instinct's episodes.
@@ -8,6 +8,7 @@ import math
 
 import pytest
 import torch
+from helpers import first_fast, run_script
 
 from flock_torchrl import scenario_config
 from flock_torchrl.report.diagnosis import (along, binomial_ci, crash_forensics, crowd_instinct, outward_normal,
@@ -153,3 +154,41 @@ def test_the_instinct_wrapper_refuses_a_world_that_applies_its_own():
                               action_mode="velocity")
     assert InstinctWrapper(lambda td: td, outside, "no_push_in", math.pi).half_fov == math.pi
     assert InstinctWrapper(lambda td: td, outside, "no_push_in").half_fov == outside.half_fov
+
+
+# ---------------------------------------------------------------------------- the app
+@pytest.mark.parametrize("args, start", first_fast([
+    (["sizes=[0]"], "error: sizes: must be an integer >= 1 and <= 2000, got 0"),
+    (["sizes=[100000]"], "error: sizes: must be an integer >= 1 and <= 2000, got 100000"),
+    (["episodes=0"], "error: episodes: must be an integer >= 1"),
+    (["scenarios=[bogus]"], "error: scenarios: must be one of"),
+    (["variants=[bogus]"], "error: variants: must be among paper,"),
+    (["policies=[nope]"], "error: policies: must be one of policy3_g, mixed"),
+    (["episodes=10000000"], "error: episodes: diagnosing 10000000 episodes at once needs about"),
+    (["checkpoints_dir={tmp}/broken", "policies=[policy3_g]"], "error: {tmp}/broken/paper_fit/policy3_g/seed0.pt is "
+                                                                "not a readable checkpoint"),
+    (["hydra.run.dir={tmp}/a_file/out"], "error: hydra.run.dir: {tmp}/a_file/out cannot be made"),
+]))
+def test_diagnose_refuses_bad_input_in_one_line_before_any_episode(tmp_path, args, start):
+    """Every bad input of scripts/diagnose.py is one line and exit 2, from any working folder,
+    before the first episode (and before an output folder that cannot be written is needed)."""
+    (tmp_path / "a_file").write_text("")
+    broken = tmp_path / "broken" / "paper_fit" / "policy3_g"
+    broken.mkdir(parents=True)
+    for k in range(3):
+        (broken / f"seed{k}.pt").write_text("not a checkpoint")
+    args = [a.format(tmp=tmp_path) for a in args]
+    proc = run_script("diagnose.py", *args, cwd=tmp_path, check=False, timeout=300)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stderr.startswith(start.format(tmp=tmp_path)) and len(proc.stderr.strip().splitlines()) == 1
+    assert "[1]" not in proc.stdout and not (tmp_path / "outputs").exists()
+
+
+@pytest.mark.slow
+def test_diagnose_finds_the_shipped_checkpoints_from_any_folder(tmp_path):
+    proc = run_script("diagnose.py", "policies=[policy3_g]", "scenarios=[forest]", "sizes=[9]", "variants=[paper]",
+                      "episodes=2", cwd=tmp_path)
+    out = tmp_path / "outputs" / "diagnosis"
+    assert "[1] Policy3-G (trained at 5) forest N=9 paper" in proc.stdout
+    assert {p.name for p in out.iterdir()} == {"rates.csv", "crashes.csv", "diagnosis.md"}
+    assert "| Policy3-G (trained at 5) | forest | 9 | paper | 6 |" in (out / "diagnosis.md").read_text()

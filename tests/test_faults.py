@@ -117,6 +117,105 @@ def test_check_memory_names_the_costliest_key_and_the_bound():
         check_memory({"a": 2**30, "b": 2 * 2**30}, "x", Usable(int(2.5 * 2**30), "a test bound"))
 
 
+def test_the_memory_estimate_counts_the_checkpoints_write_of_the_rows_the_run_fills():
+    from flock_torchrl.config import TrainConfig
+    from flock_torchrl.world.memory import train_bytes
+
+    def buffer(*extra: str) -> int:
+        cfg = TrainConfig.from_config(make_train_config("policy3_g", "tiny", ["algo.buffer_size=100000", *extra]))
+        return train_bytes(cfg)["algo.buffer_size"]
+
+    unlimited = ["experiment.max_frames=0", "experiment.max_minutes=5"]
+    held = buffer(*unlimited, "experiment.keep_buffer_in_checkpoint=false")
+    # A full buffer is held once; its checkpoint's write copies the filled rows and serialises them.
+    assert buffer(*unlimited) == 3 * held
+    # 160 frames fill 160 rows of 5 UAV transitions: the write costs their bytes twice, no more.
+    assert buffer("experiment.max_frames=160") == held + 2 * 160 * 5 * held // 100_000
+
+
+def test_a_checkpoint_holds_only_the_replay_rows_it_filled(tmp_path):
+    import torch
+
+    from flock_torchrl.policies.checkpoint import load_checkpoint
+
+    run = train(tiny("experiment.max_frames=64", "logger=none"), tmp_path / "run")
+    storage = load_checkpoint(run.checkpoint)["buffer"]["_storage"]
+    rows = storage["_len"]
+    assert 0 < rows < 1000 and rows == run.frames  # a swarm transition per frame, of a 1000-row storage
+    assert {v.shape[0] for v in storage["_storage"].values() if isinstance(v, torch.Tensor)} == {rows}
+
+
+@pytest.mark.slow
+def test_a_checkpoints_write_holds_one_copy_of_its_payload():
+    """The estimate's share of a checkpoint's write (the filled rows' copy and their serialised
+    bytes) bounds what the write holds: measured, the peak beyond the payload is one copy of it
+    (the envelope is streamed to the file, not serialised a second time in memory)."""
+    code = """
+import tempfile, torch
+from flock_torchrl.policies.checkpoint import save_checkpoint
+def status(field):
+    return next(int(l.split()[1]) * 1024 for l in open("/proc/self/status") if l.startswith(field))
+blob = torch.ones(50 * 2**20)  # 200 MiB
+open("/proc/self/clear_refs", "w").write("5")  # the peak (VmHWM) starts again from here
+base = status("VmRSS:")
+save_checkpoint({"buffer": blob}, tempfile.mktemp(suffix=".pt"), "training")
+print((status("VmHWM:") - base) / blob.nbytes)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=script_env(), timeout=120)
+    assert 0.9 < float(out.stdout) < 1.2, out
+
+
+OUT_OF_MEMORY = """
+import resource, sys, torch
+from pathlib import Path
+from flock_torchrl.policies.checkpoint import CheckpointError
+from flock_torchrl.run.parts import write_checkpoint
+path = Path(sys.argv[1])
+write_checkpoint({"step": torch.zeros(3)}, path)  # the last good checkpoint
+print(path.read_bytes().hex())
+big = torch.ones(64 * 2**20)  # 256 MiB, held before the limit
+size = next(int(l.split()[1]) * 1024 for l in open("/proc/self/status") if l.startswith("VmSize:"))
+resource.setrlimit(resource.RLIMIT_AS, (size + 64 * 2**20, size + 64 * 2**20))  # 64 MiB more: not enough
+try:
+    write_checkpoint({"step": torch.ones(3), "buffer": big}, path)
+except CheckpointError as exc:
+    print(exc)
+"""
+
+
+@pytest.mark.slow
+def test_a_checkpoint_write_that_runs_out_of_memory_keeps_the_last_good_one(tmp_path):
+    """Under a process limit (setrlimit) a checkpoint's write runs out of memory: one line saying
+    the last good checkpoint is kept, and it is (no temporary file left)."""
+    path = tmp_path / "last.pt"
+    out = subprocess.run([sys.executable, "-c", OUT_OF_MEMORY, str(path)], capture_output=True, text=True,
+                         env=script_env(), timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    good, message = out.stdout.strip().split("\n")
+    assert message == (f"writing the checkpoint {path} ran out of memory; the last good checkpoint is kept at {path}; "
+                       "lower algo.buffer_size (the replay buffer it saves) or free memory, then resume")
+    assert path.read_bytes().hex() == good
+    assert [p.name for p in tmp_path.iterdir()] == ["last.pt"]
+
+
+@pytest.mark.slow
+def test_a_large_replay_buffer_under_a_limit_trains_and_checkpoints(tmp_path):
+    """A 5M-transition buffer (1.5 GiB) under ulimit -v 6 GiB: its checkpoints write the rows it
+    filled, not the whole storage three times over, so the run finishes and resumes."""
+    from flock_torchrl.world.memory import usable_memory
+
+    if usable_memory().bytes < 6 * 2**30:
+        pytest.skip("this machine has less than 6 GiB free")
+    run = tmp_path / "run"
+    proc = script("train.py", *TINY, "algo.buffer_size=5000000", f"hydra.run.dir={run}", cwd=tmp_path,
+                  preexec=limit_memory(6), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = script("train.py", *TINY, "algo.buffer_size=5000000", "experiment.max_frames=192", "resume=true",
+                  f"hydra.run.dir={run}", cwd=tmp_path, preexec=limit_memory(6), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "checkpoint:" in proc.stdout and "192 frames" in proc.stdout
+
+
 @pytest.mark.slow
 def test_usable_memory_sees_the_processs_own_limit():
     code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30)); "

@@ -306,3 +306,143 @@ def test_a_populations_memory_estimate_counts_every_member():
     one, ten = train_bytes(quick_config(1)), train_bytes(quick_config(10))
     assert ten["algo.buffer_size"] == 10 * one["algo.buffer_size"]
     assert ten["experiment.num_envs"] == 10 * one["experiment.num_envs"]
+
+
+# ---------------------------------------------------------------------------- a population's checkpoint, used
+@pytest.fixture(scope="module")
+def population_run(tmp_path_factory):
+    """A finished population of two Policy1-G members (seeds 4 and 5): not the apps' default policy."""
+    folder = tmp_path_factory.mktemp("population") / "seed4__population-2"
+    train(quick_config(2, "policy1_g", *POPULATION_RUN, "experiment.max_frames=96"), folder)
+    return folder
+
+
+POPULATION_RUN = ["seed=4", "reading=paper_fit", "scenario.max_steps=12"]
+
+
+def test_a_populations_checkpoint_loads_one_member_by_name_or_lists_them(population_run, tmp_path):
+    from flock_torchrl import CheckpointError
+    from flock_torchrl.policies.registry import resolve
+
+    with pytest.raises(CheckpointError, match=r"population of 2 policies: choose one with member=0 \(seed 4\), "
+                                              r"member=1 \(seed 5\)$"):
+        load_policy(population_run / "last.pt")
+    payload = load_checkpoint(population_run / "last.pt")
+    policy = load_policy(population_run, member=1)
+    assert policy.flock_meta["seed"] == 5 and policy.flock_meta["policy_id"] == "policy1_g"
+    assert all(torch.equal(v, payload["members"][1]["actor"][n]) for n, v in policy.actor.state_dict().items())
+    with pytest.raises(CheckpointError, match=r"not member=2: choose one of member=0"):
+        load_policy(population_run, member=2)
+    solo = train(quick_config(1, "policy3_g", "experiment.max_frames=16"), tmp_path / "solo")
+    with pytest.raises(CheckpointError, match="one run's policy, not a population's: member=0"):
+        load_policy(solo.checkpoint, member=0)
+    # The registry (evaluate, scaling, reproduce) takes every member, each named, or the one asked for.
+    handles = resolve(population_run / "last.pt", "paper_fit")
+    assert [(h.member, h.seed) for h in handles] == [(0, 4), (1, 5)]
+    assert handles[1].source.endswith("last.pt member=1 (seed 5)")
+    (one,) = resolve(population_run / "last.pt", "paper_fit", member=1)
+    assert (one.member, one.seed) == (1, 5)
+
+
+def test_evaluate_takes_the_policy_and_member_of_a_checkpoint(population_run, tmp_path):
+    """``checkpoint=`` alone: the checkpoint's policy (Policy1-G, not the app's default Policy3-G)
+    and its world; ``member=`` one member, said in the output; a conflicting ``policy=`` is one line."""
+    import json
+
+    from helpers import run_script
+
+    proc = run_script("evaluate.py", f"checkpoint={population_run / 'last.pt'}", "member=1", "episodes=2",
+                      "scenario=s1", cwd=tmp_path)
+    assert "member=1 (seed 5)" in proc.stdout and "[1/1] Policy1-G" in proc.stdout, proc.stdout
+    (out,) = (tmp_path / "outputs" / "evaluate" / "paper_fit" / "policy1_g").iterdir()  # named after its policy
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["policy"]["id"] == "policy1_g" and summary["config"]["scenario"]["fov"] == \
+        pytest.approx(2 * math.pi)
+    from flock_torchrl.config import app_config
+    from flock_torchrl.run.evaluation import evaluated_handles
+
+    every = evaluated_handles(app_config("evaluate", policy="policy1_g", checkpoint=str(population_run / "last.pt")))
+    assert [h.source.rsplit(" ", 3)[1:] for h in every] == [["member=0", "(seed", "4)"], ["member=1", "(seed", "5)"]]
+    proc = run_script("evaluate.py", f"checkpoint={population_run / 'last.pt'}", "policy=policy3_g", "episodes=2",
+                      f"hydra.run.dir={tmp_path / 'conflict'}", cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: policy: ") and "leave policy= out" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "conflict").exists()
+
+
+def test_a_non_finite_member_in_a_populations_checkpoint_is_refused_naming_field_member_and_file(
+        population_run, tmp_path):
+    """Digest-valid, but member 1's stacked actor weights (or its slim actor) are NaN: refused in
+    one line naming the field, the member and its seed, and the file, before anything is built."""
+    from flock_torchrl import CheckpointError
+    from flock_torchrl.policies.checkpoint import save_checkpoint
+
+    payload = load_checkpoint(population_run / "last.pt")
+    params = payload["learner"]["params"]["actor_network_params"]
+    name, weight = next((k, v) for k, v in _leaves(params) if v.is_floating_point())
+    weight[1].fill_(float("nan"))
+    bad = save_checkpoint({k: v for k, v in payload.items() if k != "kind"}, tmp_path / "run" / "last.pt",
+                          kind="training")
+    with pytest.raises(CheckpointError) as info:
+        load_checkpoint(bad)
+    message = str(info.value)
+    assert message == f"{bad}: learner.params.actor_network_params.{name} holds NaN or infinite values for " \
+                      "member 1 (seed 5)"
+    with pytest.raises(CheckpointError, match="member 1 \\(seed 5\\)"):  # a resume is refused before it starts
+        train(quick_config(2, "policy1_g", *POPULATION_RUN, "resume=true"), tmp_path / "run")
+    payload = load_checkpoint(population_run / "last.pt")
+    first = next(iter(payload["members"][1]["actor"]))
+    payload["members"][1]["actor"][first].fill_(float("inf"))
+    bad = save_checkpoint({k: v for k, v in payload.items() if k != "kind"}, tmp_path / "bad.pt", kind="training")
+    with pytest.raises(CheckpointError, match=rf"^{bad}: members\[1\]\.actor\.{first} \(member 1, seed 5\) holds NaN"):
+        load_checkpoint(bad)
+
+
+def _leaves(tree, prefix=""):
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            yield from _leaves(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
+
+
+def test_a_resume_without_a_members_episode_log_is_refused_naming_it(population_run, tmp_path):
+    import shutil
+
+    from flock_torchrl import CheckpointError
+
+    run = tmp_path / "run"
+    shutil.copytree(population_run, run)
+    assert load_checkpoint(run / "last.pt")["members"][1]["episodes_seen"] > 0
+    (run / "seed5" / "episodes.csv").unlink()
+    before = {p: p.stat().st_mtime_ns for p in run.rglob("*")}
+    with pytest.raises(CheckpointError, match=rf"^{run / 'seed5' / 'episodes.csv'} is missing, but the checkpoint"):
+        train(quick_config(2, "policy1_g", *POPULATION_RUN, "experiment.max_frames=128", "resume=true"), run)
+    assert {p: p.stat().st_mtime_ns for p in run.rglob("*")} == before  # nothing was changed
+
+
+def test_a_populations_scalars_are_logged_per_member_and_as_the_solo_runs_names(tmp_path):
+    """Each member's scalars under seed<s>/, their mean under the solo run's train/* names, the
+    loop's speed under perf/frames_per_s as a solo run logs it (and perf/member_* as before)."""
+    import csv
+
+    train(quick_config(2, "policy3_g", *POPULATION_RUN, "logger=csv", "experiment.max_frames=96"), tmp_path / "run")
+    root = tmp_path / "run" / "logs" / "scalars"
+    logged = {p.relative_to(root).with_suffix("").as_posix() for p in root.rglob("*.csv")}
+    losses = {name.split("/", 2)[2] for name in logged if name.startswith("seed4/train/loss")}
+    assert losses and {"episode_reward", "success_rate"} <= {n.split("/", 2)[2] for n in logged
+                                                             if n.startswith("seed5/train/")}
+    for name in [*losses, "episode_reward", "success_rate"]:
+        assert f"train/{name}" in logged, name
+        last = lambda key: float(list(csv.reader((root / f"{key}.csv").open()))[-1][1])  # noqa: E731
+        assert last(f"train/{name}") == pytest.approx((last(f"seed4/train/{name}") + last(f"seed5/train/{name}")) / 2)
+    assert {"perf/frames_per_s", "perf/updates_per_s", "perf/member_frames_per_s"} <= logged
+
+
+def test_scaling_names_the_member_of_a_population_it_flies(population_run, tmp_path):
+    from flock_torchrl.config import app_config
+    from flock_torchrl.report.scaling import scaling
+
+    cfg = app_config("scaling", reading="paper_fit", policy_name="policy_ma", others=[str(population_run / "last.pt")],
+                     sizes=[3], episodes=1)
+    rows = scaling(cfg, tmp_path, log=lambda _: None)
+    assert rows[-1]["policy"] == "Policy1-G [tiny, seed 4, member=0 of a population]"

@@ -63,6 +63,7 @@ def tiny(*overrides: str):
     ("scenario.fov=7", "scenario.fov: must be a positive finite number and <= 6.28319"),
     ("policy=policy_ma", "policy: Policy-MA is rule-based"),
     ("experiment.workers=3", "experiment.workers: 3 must divide num_envs=4"),
+    ("scenario.tangential=2", "scenario.tangential: must be true or false, got 2"),
 ]))
 def test_config_errors_are_one_line_exit_2_and_leave_nothing(tmp_path, bad, key):
     if bad == "device=cuda" and torch.cuda.is_available():
@@ -136,6 +137,21 @@ def test_a_second_ctrl_c_aborts_at_once():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.01)
     assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_a_second_signal_in_training_says_where_it_stopped_and_how_to_resume():
+    """The Stopped of a second Ctrl-C in the loop carries the run's resume command, and says
+    "during training"; one outside a loop (an app's start) says that."""
+    from flock_torchrl.run.trainer import Signals, Stopped
+
+    with Signals("python scripts/train.py -cd runs/x -cn resume") as signals:
+        signals.handle(signal.SIGINT, None)
+        with pytest.raises(Stopped) as stop:
+            signals.handle(signal.SIGINT, None)
+    message = stop.value.message()
+    assert "during training" in message and "outside" not in message
+    assert message.endswith("resume with: python scripts/train.py -cd runs/x -cn resume")
+    assert "outside a training loop" in Stopped(signal.SIGTERM).message()
 
 
 # ---------------------------------------------------------------------------- 3: concurrent runs
@@ -249,3 +265,15 @@ def test_logs_after_kill_and_resume_equal_an_uninterrupted_runs(tmp_path):
     assert (whole / "episodes.csv").read_text() == (folder / "episodes.csv").read_text()
     saved = yaml.safe_load((folder / "config.yaml").read_text())
     assert saved["experiment"]["max_frames"] == 2400
+
+
+def test_a_resume_without_its_episode_log_is_refused_naming_it(tmp_path):
+    """The log a resume continues is gone while the checkpoint counts episodes: one line naming
+    the file, nothing changed (restarting it would leave a curve shorter than the counters)."""
+    run = train(tiny("experiment.max_frames=96", "logger=none", "scenario.max_steps=12"), tmp_path / "run")
+    assert run.episodes > 0
+    (tmp_path / "run" / "episodes.csv").unlink()
+    with pytest.raises(CheckpointError, match=rf"^{tmp_path / 'run' / 'episodes.csv'} is missing, but the "
+                                              rf"checkpoint in {tmp_path / 'run'} counts {run.episodes} episodes"):
+        train(tiny("experiment.max_frames=128", "logger=none", "scenario.max_steps=12", "resume=true"), tmp_path / "run")
+    assert not (tmp_path / "run" / "episodes.csv").exists()

@@ -82,3 +82,32 @@ def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_thr
     assert "n_cam" not in older.scenario
     env = policy_env(older, "forest", "paper_fit", 2, 0, "cpu", {"n_uavs": 12})
     assert env.cfg.n_cam == 3 and env.reset()["agents", "observation"].shape[-1] == 17
+
+
+def test_every_conflict_is_found_before_anything_is_shipped(tmp_path):
+    """A solo run and a population member both hold policy3_g seed1 (and, in the mixed
+    collection, seed0 twice): one line listing both conflicts, exit 2, and nothing written."""
+    from helpers import run_script
+
+    from flock_torchrl import CheckpointError
+
+    runs, ckpts = tmp_path / "runs", tmp_path / "checkpoints"
+    tiny_run(runs, "fast", 1, **{"experiment.max_frames": 16})
+    tiny_run(runs, "mixed", 0, **{"experiment.max_frames": 16, "population": 2}).run_dir.rename(
+        runs / "mixed" / "paper_fit" / "policy3_g" / "seed0__population-2")
+    tiny_run(runs, "mixed", 0, **{"experiment.max_frames": 16})
+    tiny_run(runs, "fast", 0, **{"experiment.max_frames": 16, "population": 2}).run_dir.rename(
+        runs / "fast" / "paper_fit" / "policy3_g" / "seed0__population-2")
+    with pytest.raises(CheckpointError) as info:
+        ship_checkpoints("paper_fit", "fast", runs, ckpts, "paper", ckpts / "paper_fit" / "paper_recipe",
+                         log=lambda _: None, collections={"mixed": "mixed"})
+    message = str(info.value)
+    assert message.startswith("nothing was shipped, 2 conflict(s): ") and "\n" not in message
+    assert f"{runs}/fast/paper_fit/policy3_g/seed0__population-2/last.pt (member 1) and " \
+           f"{runs}/fast/paper_fit/policy3_g/seed1/last.pt both hold policy3_g seed1" in message
+    assert "both hold policy3_g seed0" in message
+    assert not ckpts.exists()
+    proc = run_script("ship.py", "reading=paper_fit", f"runs_dir={runs}", f"checkpoints_dir={ckpts}",
+                      cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and proc.stderr.startswith("error: nothing was shipped, 2 conflict(s)"), proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and not ckpts.exists()

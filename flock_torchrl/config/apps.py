@@ -203,6 +203,7 @@ class EvaluateConfig(EpisodeOptions, WorldApp):
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     algo: Optional[LearnerConfig] = None     # the policy's learner (not used to evaluate)
     checkpoint: Optional[str] = None         # a checkpoint file instead of the shipped ones
+    member: Optional[int] = None             # of a population's checkpoint, one member (default: every member)
     contender: Any = None                    # a controller of the user's instead (registry.contender_handle)
     max_steps: Optional[int] = None
 
@@ -211,6 +212,10 @@ class EvaluateConfig(EpisodeOptions, WorldApp):
         if self.checkpoint is not None and self.contender is not None:
             reject("contender", "evaluates one controller: give checkpoint= or contender=, not both")
         check_contender("contender", self.contender)
+        if self.member is not None:
+            if self.checkpoint is None:
+                reject("member", "chooses a member of a population's checkpoint: give checkpoint= too")
+            count("member", self.member, 0, MAX_POPULATION - 1)
         if self.max_steps is not None:
             count("max_steps", self.max_steps, 1, 10**7)
         fields = dict(super().checked_fields(p))  # the run options, then the world
@@ -321,12 +326,48 @@ class ShipConfig(WorldApp):
         return fields
 
 
+@dataclass
+class DiagnoseConfig(EpisodeOptions, WorldApp):
+    """``conf/diagnose.yaml``: crash forensics and evaluation-time ablations of shipped policies
+    (``scripts/diagnose.py``; logic: ``flock_torchrl.report.diagnosis``)."""
+
+    catalogue: Dict[str, Any] = field(default_factory=dict)  # key -> {label, folder, seeds}
+    policies: List[str] = MISSING            # keys of the catalogue, each a row label pooling its seeds
+    scenarios: List[str] = MISSING
+    sizes: List[int] = MISSING
+    variants: List[str] = MISSING
+
+    def checked_fields(self, p: str) -> dict[str, Any]:
+        fields = dict(super().checked_fields(p))  # the run options, then the world
+        for key, entry in self.catalogue.items():
+            ok = (isinstance(entry, Mapping) and isinstance(entry.get("label"), str) and entry.get("label")
+                  and isinstance(entry.get("folder"), str) and entry.get("folder"))
+            if not ok:
+                reject(f"catalogue.{key}", f"must be {{label: <text>, folder: <folder>, seeds: <n>}}, got {entry!r}")
+            count(f"catalogue.{key}.seeds", entry.get("seeds"), 1, 1000)
+        if not self.policies:
+            reject("policies", f"a list of the catalogue's keys ({', '.join(self.catalogue)}), got []")
+        for name in self.policies:
+            choice("policies", name, list(self.catalogue))
+        if not self.scenarios:
+            reject("scenarios", "a list of scenarios, got []")
+        for name in self.scenarios:
+            choice("scenarios", name, available("scenario"))
+        if not self.sizes:
+            reject("sizes", "a list of swarm sizes, got []")
+        for n in self.sizes:
+            count("sizes", n, 1, MAX_UAVS)
+        if not self.variants:
+            reject("variants", "a list of variants, got []")
+        return fields
+
+
 APP_SCHEMAS: dict[str, type[Schema]] = {
     "train": TrainConfig, "evaluate": EvaluateConfig, "reproduce": ReproduceConfig, "figures": FiguresConfig,
-    "scaling": ScalingConfig, "tune_baselines": TuneConfig, "ship": ShipConfig,
+    "scaling": ScalingConfig, "tune_baselines": TuneConfig, "ship": ShipConfig, "diagnose": DiagnoseConfig,
 }
 
-__all__ = ["APP_SCHEMAS", "COMPARED", "COMPILE_MODES", "EpisodeOptions", "EvaluateConfig", "FiguresConfig",
+__all__ = ["APP_SCHEMAS", "COMPARED", "COMPILE_MODES", "DiagnoseConfig", "EpisodeOptions", "EvaluateConfig", "FiguresConfig",
            "MAX_POPULATION", "OBJECTIVES", "RESUME_MODES", "ReproduceConfig", "RunOptions", "ScalingConfig",
            "ShipConfig", "TrainConfig", "TuneConfig", "WorldApp", "check_contender", "check_tolerance",
            "training_scenario"]

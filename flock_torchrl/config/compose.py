@@ -31,7 +31,7 @@ from .groups import ExperimentConfig, LoggerConfig, PolicyConfig
 from .learners import ALGO_SCHEMAS
 from .names import config_folder, evaluated_name, run_name, selection_dir
 from .paths import CONF_DIR, shipped_checkpoints_dir
-from .scenario import SCENARIO_FIELDS, ScenarioConfig
+from .scenario import SCENARIO_FIELDS, ScenarioConfig, check_booleans
 
 # The resolvers the YAMLs use, by name.
 RESOLVERS = {
@@ -94,7 +94,9 @@ def compose(config_name: str, overrides: Sequence[str] = (), return_hydra_config
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-            return hydra_compose(config_name, overrides=list(overrides), return_hydra_config=return_hydra_config)
+            cfg = hydra_compose(config_name, overrides=list(overrides), return_hydra_config=return_hydra_config)
+        check_boolean_overrides(cfg, overrides)
+        return cfg
     except OmegaConfBaseException as exc:
         raise config_error(exc) from exc
     except HydraException as exc:
@@ -105,6 +107,28 @@ def compose(config_name: str, overrides: Sequence[str] = (), return_hydra_config
         raise ConfigError(hydra_key(exc), " ".join(str(exc).split("Config search path")[0].split())) from exc
     finally:
         restore_gh_from_backup(backup)
+
+
+def check_boolean_overrides(cfg: DictConfig, overrides: Sequence[str]) -> None:
+    """A command-line value of a boolean key is ``true`` or ``false``: OmegaConf would take ``2``,
+    ``yes`` or ``on`` as true, and a typo (``instinct=2``) would pass unseen. Sweeps are checked
+    job by job (each job's overrides are plain values)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        parsed = OverridesParser.create().parse_overrides([str(o) for o in overrides])
+    except HydraException:  # Hydra has already named a malformed override
+        return
+    for override in parsed:
+        if override.is_hydra_override() or override.is_delete() or override.is_sweep_override():
+            continue
+        key = override.key_or_group
+        try:
+            composed = OmegaConf.select(cfg, key, throw_on_missing=False)
+        except OmegaConfBaseException:
+            continue
+        if isinstance(composed, bool) and not isinstance(override.value(), bool):
+            raise ConfigError(key, f"must be true or false, got {override.get_value_element_as_str()}")
 
 
 def hydra_key(exc: BaseException) -> str:
@@ -199,6 +223,9 @@ def scenario_config(scenario: str | Mapping[str, Any] | DictConfig | ScenarioCon
         if isinstance(scenario, ScenarioConfig) and not fields:
             return ScenarioConfig.from_config(scenario)
         node = dataclasses.asdict(scenario) if isinstance(scenario, ScenarioConfig) else scenario
+    check_booleans(fields)
+    if isinstance(node, Mapping):
+        check_booleans(node)
     try:
         node = OmegaConf.merge(OmegaConf.structured(ScenarioConfig), node)
         for name, value in fields.items():

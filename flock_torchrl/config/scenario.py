@@ -183,6 +183,9 @@ class ScenarioConfig(Schema):
         obstacle lists come back as lists of floats."""
         k = lambda name: dotted(prefix, name)  # noqa: E731
         choice(k("reading"), self.reading, READINGS)
+        for f in dataclasses.fields(self):  # booleans are booleans (not 2, "yes" or 1)
+            if f.name in BOOLEAN_FIELDS and not isinstance(getattr(self, f.name), bool):
+                reject(k(f.name), f"must be true or false, got {getattr(self, f.name)!r}")
         if self.dims not in (2, 3) or isinstance(self.dims, bool):
             reject(k("dims"), f"must be 2 or 3, got {self.dims!r}")
         # Bounds keep a config from asking for more than any machine holds (the world's
@@ -213,6 +216,11 @@ class ScenarioConfig(Schema):
         choice(k("collision_reward_source"), self.collision_reward_source, ("scan", "min_uav_scan"))
         choice(k("action_mode"), self.action_mode, ("policy", "velocity"))
         choice(k("instinct_mode"), self.instinct_mode, INSTINCT_MODES)
+        if not self.instinct and self.instinct_mode != "paper":  # a mode of an instinct that never switches on
+            raise ConfigError(k("instinct_mode"), f"{self.instinct_mode!r} shapes the repulsion instinct, which "
+                                                  f"{k('instinct')}=false turns off, so it would do nothing; set "
+                                                  f"{k('instinct_mode')}=paper or {k('instinct')}=true",
+                              also=(k("instinct"),))
         choice(k("cohesion_range"), self.cohesion_range, COHESION_RANGES)
         choice(k("collision_shape"), self.collision_shape, COLLISION_SHAPES)
         choice(k("actor_camera"), self.actor_camera, ACTOR_CAMERAS)
@@ -333,6 +341,15 @@ def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
 
 
 SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
+BOOLEAN_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig) if f.type in ("bool", bool))
+
+
+def check_booleans(values: Any, prefix: str = "scenario") -> None:
+    """Boolean fields among ``values`` (a mapping) are booleans, before OmegaConf would take
+    ``2`` or ``"yes"`` as true."""
+    for name in BOOLEAN_FIELDS & set(values):
+        if not isinstance(values[name], bool):
+            reject(dotted(prefix, name), f"must be true or false, got {values[name]!r}")
 # The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
 # interface): a checkpoint records them, and evaluation applies them in any scenario. A
 # checkpoint written before a field was added here flies with the scenario's value of it,

@@ -22,14 +22,14 @@ import os
 import pickle
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from ..config import ScenarioConfig, saved_scenario
-from ..io import write_bytes
+from ..io import atomic_write
 from ..world.sensors import observation_size
 from .models import ACTION, OBS, actor_of_sizes
 
@@ -53,15 +53,42 @@ def _serialise(obj: Any) -> bytes:
 
 
 def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike, kind: str) -> Path:
-    """Write ``payload`` as a ``kind`` checkpoint, atomically, with its digest."""
+    """Write ``payload`` as a ``kind`` checkpoint, atomically, with its digest.
+
+    Memory: the payload is serialised once into memory (its digest is taken there); the
+    envelope around it is streamed to the temporary file through an open handle, without
+    another copy of those bytes (torch names the archive inside after a file *path*, so the
+    handle, like a buffer, keeps every export's bytes the same wherever it is written)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-    data = _serialise(payload)
-    envelope = {"format": FORMAT, "kind": kind, "sha256": hashlib.sha256(data).hexdigest(),
-                "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
-    # Serialised in memory, not to the temporary file: torch names the archive inside after the
-    # file it writes, so writing the temporary file directly would make every export's bytes differ.
-    return write_bytes(path, _serialise(envelope))
+    buffer = io.BytesIO()
+    _save(payload, buffer)
+    view = buffer.getbuffer()  # the bytes in place, no copy
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch warns that the tensor shares a writable buffer: it is only read
+        data = torch.frombuffer(view, dtype=torch.uint8)
+    envelope = {"format": FORMAT, "kind": kind, "sha256": hashlib.sha256(view).hexdigest(), "payload": data}
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as handle:
+            _save(envelope, handle)
+
+    return atomic_write(path, write)
+
+
+def _save(obj: Any, handle: Any) -> None:
+    """``torch.save`` into an open handle; a write or an allocation that fails inside it comes
+    out as itself (``OSError``: a full disk, a file-size limit; ``MemoryError``), not as the
+    ``RuntimeError`` torch's archive writer raises when it is closed after it."""
+    try:
+        torch.save(obj, handle)
+    except RuntimeError as exc:
+        cause, seen = exc.__context__, 0
+        while cause is not None and seen < 8:
+            if isinstance(cause, (OSError, MemoryError)):
+                raise cause from None
+            cause, seen = cause.__cause__ or cause.__context__, seen + 1
+        raise
 
 
 def resolve_path(path: str | os.PathLike) -> Path:
@@ -117,6 +144,8 @@ def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[st
     if missing:
         raise CheckpointError(f"{path} is a {envelope.get('kind')} checkpoint without {', '.join(missing)}: it "
                               "cannot be used (written by something else than flock_torchrl's trainer?)")
+    if envelope["kind"] == "training":
+        check_training_fields(payload, path)
     check_policy_fields(payload, path)
     payload["kind"] = envelope["kind"]
     return payload
@@ -152,6 +181,38 @@ def check_policy_fields(payload: dict[str, Any], path: str | os.PathLike) -> Non
             raise CheckpointError(f"{path}: actor.{name} holds NaN or infinite weights")
 
 
+def _non_finite(tree: Any, name: str) -> Iterator[tuple[str, torch.Tensor]]:
+    """``(dotted name, tensor)`` of every floating tensor in ``tree`` (dicts, lists) that holds
+    NaN or an infinity."""
+    if isinstance(tree, torch.Tensor):
+        if tree.is_floating_point() and not bool(torch.isfinite(tree).all()):
+            yield name, tree
+    elif isinstance(tree, dict):
+        for key, value in tree.items():
+            yield from _non_finite(value, f"{name}.{key}")
+    elif isinstance(tree, (list, tuple)):
+        for i, value in enumerate(tree):
+            yield from _non_finite(value, f"{name}[{i}]")
+
+
+def check_training_fields(payload: dict[str, Any], path: str | os.PathLike) -> None:
+    """Refuse, naming the field (and, of a population's, the member and its seed), a training
+    checkpoint whose learner (networks, optimiser state) or members' actors are not finite: a
+    run resumed from it would fail in its first step, far from the cause."""
+    members = members_of(payload)
+    seeds = [m.get("seed", "?") if isinstance(m, dict) else "?" for m in members]
+    for k, member in enumerate(members):
+        actor = member.get("actor") if isinstance(member, dict) else None
+        for name, _ in _non_finite(actor, f"members[{k}].actor"):
+            raise CheckpointError(f"{path}: {name} (member {k}, seed {seeds[k]}) holds NaN or infinite weights")
+    for name, tensor in _non_finite(payload.get("learner"), "learner"):
+        if members and tensor.dim() and tensor.shape[0] == len(members):  # stacked: one row per member
+            bad = [k for k in range(len(members)) if not bool(torch.isfinite(tensor[k]).all())]
+            who = ", ".join(f"member {k} (seed {seeds[k]})" for k in bad)
+            raise CheckpointError(f"{path}: {name} holds NaN or infinite values for {who}")
+        raise CheckpointError(f"{path}: {name} holds NaN or infinite values")
+
+
 def _version_hint(found: object) -> str:
     """Whether a checkpoint of another format is older or newer than this version reads."""
     import re
@@ -165,6 +226,36 @@ def _version_hint(found: object) -> str:
     return f"it was written by an older flock_torchrl (format v{version}; this one reads v{FORMAT_VERSION})"
 
 
+def members_of(payload: dict[str, Any]) -> list[dict[str, Any]]:
+    """A population checkpoint's members (each a policy: ``meta``, ``actor``, ...); empty for one run's."""
+    members = payload.get("members")
+    return list(members) if isinstance(members, list) else []
+
+
+def member_list(payload: dict[str, Any]) -> str:
+    """``member=0 (seed 4), member=1 (seed 5)``: how to choose a population's members."""
+    return ", ".join(f"member={k} (seed {m.get('seed', '?')})" for k, m in enumerate(members_of(payload)))
+
+
+def policy_of(payload: dict[str, Any], path: str | os.PathLike, member: int | None = None) -> dict[str, Any]:
+    """The policy a checkpoint holds (its ``meta`` and ``actor``, ...): of a population's,
+    member ``member``'s, which must then be given (a :class:`CheckpointError` lists them);
+    ``member`` of a single run's checkpoint is refused."""
+    members = members_of(payload)
+    if not members:
+        if member is not None:
+            raise CheckpointError(f"{path} holds one run's policy, not a population's: member={member} does not "
+                                  "apply (leave it out)")
+        return payload
+    if member is None:
+        raise CheckpointError(f"{path} holds a population of {len(members)} policies: choose one with "
+                              f"{member_list(payload)}")
+    if isinstance(member, bool) or not isinstance(member, int) or not 0 <= member < len(members):
+        raise CheckpointError(f"{path} holds {len(members)} population members, not member={member!r}: choose "
+                              f"one of {member_list(payload)}")
+    return members[member]
+
+
 def export_policy(checkpoint: str | os.PathLike, destination: str | os.PathLike, member: int | None = None) -> Path:
     """Write the slim, shippable part of a training checkpoint (:func:`policy_payload`)."""
     return save_checkpoint(policy_payload(checkpoint, member), destination, kind="policy")
@@ -174,12 +265,13 @@ def policy_payload(checkpoint: str | os.PathLike, member: int | None = None) -> 
     """The slim, shippable part of a training checkpoint (actor, metadata, config, counters,
     evaluations, training curve; no optimiser, replay buffer or env state); of a population's
     checkpoint, member ``member``'s (each member holds those keys itself)."""
-    payload = load_checkpoint(checkpoint, kind="training")
+    return slim_payload(load_checkpoint(checkpoint, kind="training"), checkpoint, member)
+
+
+def slim_payload(payload: dict[str, Any], checkpoint: str | os.PathLike, member: int | None = None) -> dict[str, Any]:
+    """:func:`policy_payload` of a training checkpoint already read (``checkpoint``: its path, for errors)."""
     if member is not None:
-        members = payload.get("members") or []
-        if not 0 <= member < len(members):
-            raise CheckpointError(f"{checkpoint} holds {len(members)} population member(s), not member {member}")
-        payload = members[member]
+        payload = policy_of(payload, checkpoint, member)
     return {key: payload[key] for key in ("meta", "actor", "config", "counters", "evaluations", "curve")
             if key in payload}
 
@@ -224,18 +316,23 @@ class SharedPolicy(TensorDictModuleBase):
         return self.actor(tensordict)
 
 
-def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu") -> SharedPolicy:
+def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu", member: int | None = None
+                ) -> SharedPolicy:
     """A trained policy from a checkpoint (slim or training, or a run folder), ready for
     ``env.rollout``. Build its env in its own world::
 
         policy = load_policy("checkpoints/paper_fit/policy3_g/seed0.pt")
         env = FlockingEnv("s2", num_envs=8, reading=policy.flock_meta["reading"],
                           policy_id=policy.flock_meta["policy_id"])
+
+    A population's checkpoint (``population=K``) holds K policies: ``member=k`` chooses one
+    (``load_policy(run, member=1)``: seed ``seed + 1``); without it the error lists them.
     """
-    payload = load_checkpoint(path)
-    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device, origin=str(resolve_path(path)))
+    origin = str(resolve_path(path))
+    payload = policy_of(load_checkpoint(path), origin, member)
+    return SharedPolicy(payload["actor"], dict(payload["meta"]), device=device, origin=origin)
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
-           "policy_payload",
+           "member_list", "members_of", "policy_of", "policy_payload", "slim_payload",
            "resolve_path", "save_checkpoint"]

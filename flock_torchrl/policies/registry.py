@@ -22,7 +22,7 @@ from typing import Any, Callable, Mapping
 
 from ..config import (POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, compose_world, contender_name,
                       default_checkpoints_dir, is_file_target)
-from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, resolve_path
+from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, members_of, policy_of, resolve_path
 
 Module = Callable[[Any], Any]
 
@@ -40,6 +40,7 @@ class PolicyHandle:
         extras: env keys it reads beyond the observation (``FlockingEnv(extras=...)``).
         origin: a checkpoint path, ``baseline:<id>`` or ``module``.
         seed: the training seed of a checkpoint (``None`` otherwise).
+        member: the member of a population's checkpoint it is (``None``: not a population's).
     """
 
     id: str
@@ -51,6 +52,7 @@ class PolicyHandle:
     origin: str
     build_for: Callable[[Any], Module] = field(repr=False)
     seed: int | None = None
+    member: int | None = None      # which member of a population's checkpoint (``None``: one run's)
 
     def build(self, env: Any) -> Module:
         """The TensorDict module that acts in ``env`` (a :class:`~flock_torchrl.FlockingEnv`);
@@ -60,6 +62,11 @@ class PolicyHandle:
             raise ValueError(f"{self.name} reads the env's extra keys {tuple(self.extras)}, and this env does not emit "
                              f"{tuple(missing)}: build it with FlockingEnv(..., extras={tuple(self.extras)!r})")
         return self.build_for(env)
+
+    @property
+    def source(self) -> str:
+        """Where it comes from, in words: its origin, and which member of a population it is."""
+        return self.origin if self.member is None else f"{self.origin} member={self.member} (seed {self.seed})"
 
     def check_reading(self, reading: str) -> None:
         """Refuse to act in a world of another reading than the one it was trained under."""
@@ -96,15 +103,19 @@ def shipped_checkpoints(name: str, folder: str | os.PathLike) -> list[Path]:
     return sorted((Path(folder) / policy_id(name)).glob("seed*.pt"), key=seed_of)
 
 
-def checkpoint_handle(path: str | os.PathLike, device: str = "cpu") -> PolicyHandle:
-    """The policy a checkpoint holds (slim or training)."""
-    payload = load_checkpoint(path)
-    meta = dict(payload["meta"])
-    module = SharedPolicy(payload["actor"], meta, device=device, origin=str(resolve_path(path)))
+def checkpoint_handle(path: str | os.PathLike, device: str = "cpu", member: int | None = None,
+                      payload: dict[str, Any] | None = None) -> PolicyHandle:
+    """The policy a checkpoint holds (slim or training); of a population's, member ``member``'s
+    (which must be given: the error lists them). ``payload``: the checkpoint, already read."""
+    origin = str(resolve_path(path))
+    one = policy_of(payload if payload is not None else load_checkpoint(path), origin, member)
+    meta = dict(one["meta"])
+    where = origin if member is None else f"{origin} member={member}"
+    module = SharedPolicy(one["actor"], meta, device=device, origin=where)
     return PolicyHandle(
         id=meta["policy_id"], name=meta["policy"], kind="learned", reading=meta["reading"],
-        scenario=dict(meta["policy_scenario"]), extras=(), origin=str(resolve_path(path)),
-        build_for=lambda env: same_dims(module, env, str(resolve_path(path))), seed=meta.get("seed"))
+        scenario=dict(meta["policy_scenario"]), extras=(), origin=origin,
+        build_for=lambda env: same_dims(module, env, where), seed=meta.get("seed"), member=member)
 
 
 def same_dims(module: Any, env: Any, origin: str) -> Any:
@@ -114,6 +125,15 @@ def same_dims(module: Any, env: Any, origin: str) -> Any:
         raise ConfigError("scenario.dims", f"is {env.cfg.dims} here, but {origin} was trained in a world with dims "
                                            f"{module.dims}: evaluate it on a {module.dims}-D scenario")
     return module
+
+
+def checkpoint_handles(path: str | os.PathLike, device: str = "cpu", member: int | None = None) -> list[PolicyHandle]:
+    """Every policy a checkpoint holds: its one policy, a population's every member (as a learned
+    policy's name stands for every shipped seed), or the member ``member``."""
+    payload = load_checkpoint(path)
+    members = members_of(payload)
+    chosen = [member] if member is not None or not members else list(range(len(members)))
+    return [checkpoint_handle(path, device, k, payload) for k in chosen]
 
 
 def rule_handle(policy: PolicyConfig, scenario: Mapping[str, Any]) -> PolicyHandle:
@@ -269,7 +289,8 @@ def _is_path(policy: Any) -> bool:
 
 
 def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.PathLike | None = None,
-            device: str = "cpu", policy_config: PolicyConfig | None = None) -> list[PolicyHandle]:
+            device: str = "cpu", policy_config: PolicyConfig | None = None,
+            member: int | None = None) -> list[PolicyHandle]:
     """Every policy ``policy`` stands for (one per shipped seed for a learned name).
 
     Args:
@@ -281,7 +302,11 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
             conf/world.yaml).
         policy_config: the policy's composed config, when the caller has it (an app composed
             with the user's config folders); otherwise ``conf/policy/<id>.yaml`` is composed.
+        member: of a population's checkpoint, the member to take (``None``: every member, each
+            named by its member and seed); refused for anything else.
     """
+    if member is not None and not _is_path(policy):
+        raise ConfigError("member", f"chooses a member of a population's checkpoint; {policy!r} is not a checkpoint")
     if isinstance(policy, PolicyHandle):
         handles = [policy]
     elif callable(policy) and not isinstance(policy, (str, os.PathLike)):
@@ -290,7 +315,7 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
         path = resolve_path(policy)
         if not path.is_file():
             raise CheckpointError(f"no checkpoint at {path}")
-        handles = [checkpoint_handle(path, device)]
+        handles = checkpoint_handles(path, device, member)
     else:
         if policy_config is not None:
             config, scenario = policy_config, {}
@@ -333,5 +358,5 @@ def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
     return handle.build(env)
 
 
-__all__ = ["PolicyHandle", "checkpoint_handle", "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
+__all__ = ["PolicyHandle", "checkpoint_handle", "checkpoint_handles", "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
            "policy_id", "resolve", "rule_handle", "shipped_checkpoints"]

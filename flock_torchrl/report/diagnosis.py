@@ -1,4 +1,4 @@
-"""Why learned flocks crash at 20-50 UAVs (issue 32, item 1): crash forensics and evaluation-time ablations.
+"""Why learned flocks crash at 20-50 UAVs: crash forensics and evaluation-time ablations.
 
 Two tools, both on the evaluation protocol (seeded batched episodes, deterministic actions):
 
@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import torch
@@ -44,10 +45,10 @@ UAV_RADIUS = 0.25  # m: half the collision distance, the body a laser that saw U
 
 # variant -> (scenario overrides, what the actor sees, instinct wrapper mode or None, the wrapper
 # instinct's camera: "own" (the UAV's field of view) or "allround" (360 deg))
-OUTSIDE = {"instinct": False, "action_mode": "velocity"}  # the world of an instinct applied by InstinctWrapper
+OUTSIDE = {"instinct": False, "instinct_mode": "paper", "action_mode": "velocity"}  # the world of an instinct applied by InstinctWrapper
 VARIANTS: dict[str, tuple[dict[str, Any], str, str | None, str]] = {
     "paper": ({}, "own", None, "own"),                             # the paper's instinct, in the world
-    "instinct_off": ({"instinct": False}, "own", None, "own"),
+    "instinct_off": ({"instinct": False, "instinct_mode": "paper"}, "own", None, "own"),
     "tangential_off": ({"tangential": False}, "own", None, "own"),  # the instinct's push radial only (Eq. 28 off)
     "allround_camera": ({}, "allround", None, "own"),              # actor's camera slots from the critic's 360 deg camera
     "wrapped_paper": (OUTSIDE, "own", "paper", "own"),             # control: the same episodes as "paper"
@@ -476,3 +477,70 @@ def crash_table(rows: Sequence[dict]) -> list[str]:
 
 
 __all__ += ["CRASH_COLUMNS", "crash_rows", "crash_table", "diagnose", "pooled", "rate_rows", "rate_table"]
+
+
+# ---------------------------------------------------------------------------- the app
+def diagnosed_checkpoints(cfg: Any) -> dict[str, list[Path]]:
+    """Label -> the shipped checkpoints it pools, of the catalogue's ``cfg.policies``
+    (``<checkpoints_dir>/<reading>/<folder>/seed<k>.pt``: found from any working folder)."""
+    root = Path(cfg.checkpoints_dir) / cfg.scenario.reading
+    return {cfg.catalogue[key]["label"]: [root / cfg.catalogue[key]["folder"] / f"seed{k}.pt"
+                                          for k in range(int(cfg.catalogue[key]["seeds"]))] for key in cfg.policies}
+
+
+def cell_bytes(scenario: ScenarioConfig, episodes: int, window: int = 5) -> int:
+    """What :func:`run_cell` holds for ``episodes`` worlds: the worlds themselves and the ring of
+    their last ``window`` steps (positions, headings, scans, actions, instinct flags)."""
+    from ..world.memory import world_bytes
+
+    ring = window * scenario.n_uavs * (4 * (2 + 1 + scenario.n_beams + 2) + 1)
+    return episodes * (world_bytes(scenario) + ring)
+
+
+def check_diagnosis(cfg: Any) -> None:
+    """Everything that can refuse a diagnosis before its first episode, each in one line: an
+    unknown variant, a swarm that cannot be spawned, more episodes than memory holds, a shipped
+    checkpoint that is missing, broken or of another reading."""
+    from ..config import ConfigError, scenario_config
+    from ..policies.registry import resolve
+    from ..world.memory import check_memory
+    from ..world.spawn import check_spawn_feasible
+
+    for name in cfg.variants:
+        if name not in VARIANTS:
+            raise ConfigError("variants", f"must be among {', '.join(VARIANTS)}; got {name!r}")
+    largest = 0
+    for name in cfg.scenarios:
+        for n in sorted(set(cfg.sizes)):
+            scenario = scenario_config(name, reading=cfg.scenario.reading, n_uavs=n)
+            check_spawn_feasible(scenario)
+            largest = max(largest, cell_bytes(scenario, cfg.episodes))
+    check_memory({"episodes": largest}, f"diagnosing {cfg.episodes} episodes at once")
+    for paths in diagnosed_checkpoints(cfg).values():
+        for path in paths:
+            resolve(path, cfg.scenario.reading, device=cfg.device)
+
+
+def diagnose_app(cfg: Any, out_dir: str | Path, log: Callable[[str], None] = print) -> list[CellResult]:
+    """``conf/diagnose.yaml``'s app: :func:`diagnose` of the catalogue's ``cfg.policies``; writes
+    ``rates.csv``, ``crashes.csv`` and ``diagnosis.md`` into ``out_dir``."""
+    from ..io import write_csv, write_text
+
+    out = Path(out_dir)
+    start = time.perf_counter()
+    cells = diagnose(diagnosed_checkpoints(cfg), cfg.scenarios, cfg.sizes, cfg.variants, cfg.episodes,
+                     reading=cfg.scenario.reading, seed=cfg.seed, device=cfg.device, log=log)
+    rates, crashes = rate_rows(cells), crash_rows(cells)
+    write_csv(out / "rates.csv", list(rates[0]), rates)
+    write_csv(out / "crashes.csv", ["policy", "scenario", "n_uavs", "variant", *CRASH_COLUMNS], crashes)
+    text = ["# Crash forensics and ablations (scripts/diagnose.py)", "",
+            f"Reading {cfg.scenario.reading}, evaluation seed {cfg.seed}, {cfg.episodes} episodes per checkpoint "
+            f"and cell, {time.perf_counter() - start:.0f} s.", "", *rate_table(rates), "",
+            "Crashed episodes, the UAV that hit, at its last step before the crash (n: outward normal of the "
+            "obstacle; negative = toward it):", "", *crash_table([r for r in crashes if r["variant"] == "paper"]), ""]
+    write_text(out / "diagnosis.md", "\n".join(text))
+    log("\n".join(text))
+    return cells
+
+
+__all__ += ["cell_bytes", "check_diagnosis", "diagnose_app", "diagnosed_checkpoints"]

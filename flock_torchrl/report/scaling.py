@@ -56,7 +56,8 @@ def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], 
     rows = []
     for k, handle in enumerate(handles):
         experiment, trained = training_of(handle)
-        label = f"{handle.name} [{experiment}, seed {handle.seed}]" if k and handle.kind != "rule" else handle.name
+        member = "" if handle.member is None else f", member={handle.member} of a population"  # its lowest seed
+        label = f"{handle.name} [{experiment}, seed {handle.seed}{member}]" if k and handle.kind != "rule" else handle.name
         for n in sizes:
             start = time.perf_counter()
             result = evaluate_handle(handle, scenario, reading, episodes, seed, cfg.device, {"n_uavs": n})

@@ -3,26 +3,52 @@ a checkpoint or a contender on one scenario by the section 5 protocol, taking it
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
+
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from ..config import ConfigError, EvaluateConfig
-from ..policies.registry import PolicyHandle, contender_handle, resolve, world_label
+from ..policies.registry import PolicyHandle, contender_handle, policy_config_of, resolve, world_label
 from .results import EvaluationResult, write_result
 from .rollout import evaluate_handle, try_contender
 
 
 def evaluated_handles(cfg: EvaluateConfig) -> list[PolicyHandle]:
-    """What ``cfg`` evaluates: the contender, the checkpoint, or the policy's shipped seeds."""
+    """What ``cfg`` evaluates: the contender, the checkpoint (a population's: every member, or
+    ``member``), or the policy's shipped seeds."""
     if cfg.contender is not None:
         return [contender_handle(cfg.contender, cfg.device, key="contender")]
     handles = resolve(cfg.checkpoint or cfg.policy.id, cfg.scenario.reading, cfg.checkpoints_dir,
-                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy)
+                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy, member=cfg.member)
     if cfg.checkpoint and handles[0].id != cfg.policy.id:
-        raise ConfigError("policy", f"{cfg.checkpoint} holds {handles[0].name}; pass policy={handles[0].id} so that "
-                                    "its world is composed")
+        raise ConfigError("policy", f"{cfg.checkpoint} holds {handles[0].name}, not {cfg.policy.name}: leave policy= "
+                                    f"out (the checkpoint's policy is taken) or pass policy={handles[0].id}")
     return handles
+
+
+def checkpoint_world(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
+    """The evaluate app's composed ``cfg`` in the world of the policy its ``checkpoint`` holds,
+    when the command line (``overrides``) chose no ``policy=``: its ``policy`` node and the
+    scenario fields the policy sets, but those the command line sets itself (a conflict is then
+    :func:`~.rollout.policy_env`'s one-line error). With ``policy=`` given, ``cfg`` as it is
+    (:func:`evaluated_handles` refuses a policy other than the checkpoint's)."""
+    given = {str(o).lstrip("+~").split("=", 1)[0] for o in overrides}
+    if not cfg.get("checkpoint") or cfg.get("contender") is not None or "policy" in given:
+        return cfg
+    handle = resolve(str(cfg.checkpoint), member=cfg.get("member"))[0]  # a population's members share their policy
+    if handle.id == cfg.policy.id:
+        return cfg
+    policy, _ = policy_config_of(handle.id, str(cfg.scenario.reading))
+    out = copy.deepcopy(cfg)
+    with open_dict(out):
+        out.policy = OmegaConf.structured(policy)
+        for key, value in handle.scenario.items():
+            if f"scenario.{key}" not in given:
+                out.scenario[key] = value
+    return out
 
 
 def check_evaluation(cfg: EvaluateConfig) -> None:
@@ -40,11 +66,11 @@ def evaluate_app(cfg: EvaluateConfig, out_dir: str | Path, log: Callable[[str], 
     results = []
     handles = evaluated_handles(cfg)
     for i, handle in enumerate(handles, 1):
-        log(f"[{i}/{len(handles)}] {handle.name} ({handle.origin}): {cfg.episodes} episodes on {cfg.scenario.name} ...")
+        log(f"[{i}/{len(handles)}] {handle.name} ({handle.source}): {cfg.episodes} episodes on {cfg.scenario.name} ...")
         results.append(evaluate_handle(handle, cfg.scenario, None, cfg.episodes, cfg.seed, cfg.device,
                                        contender_key="contender", log=log))
         world = f"; world: {world_label(handle.scenario)}" if handle.kind == "contender" else ""
-        log(f"{results[-1]} [{handle.origin}{world}]")
+        log(f"{results[-1]} [{handle.source}{world}]")
     result = EvaluationResult.pooled(results)
     if len(results) > 1:
         log(f"pooled over {len(results)} checkpoints: {result}")
@@ -56,4 +82,4 @@ def evaluate_app(cfg: EvaluateConfig, out_dir: str | Path, log: Callable[[str], 
     return result
 
 
-__all__ = ["check_evaluation", "evaluate_app", "evaluated_handles"]
+__all__ = ["check_evaluation", "checkpoint_world", "evaluate_app", "evaluated_handles"]

@@ -3,6 +3,7 @@ asks of a learner, its evaluation row, its checkpoint writes and its result."""
 
 from __future__ import annotations
 
+import copy
 import errno
 import functools
 import math
@@ -104,15 +105,53 @@ def replay_buffer(cfg: TrainConfig, n_uavs: int, device: torch.device, **kwargs:
     return TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device), batch_size=batch, **kwargs)
 
 
+def buffer_state(buffer: TensorDictReplayBuffer) -> dict[str, Any]:
+    """The replay buffer's ``state_dict`` with only its filled rows (a copy of them): the rows
+    never written are not saved, nor is the whole preallocated storage copied (a view of it would
+    save all of it). :func:`restore_buffer` gives the storage its capacity again."""
+    state = buffer.state_dict()
+    storage = state["_storage"]
+    rows, capacity = int(storage.get("_len", 0)), buffer.storage.max_size
+    tensors = storage.get("_storage")
+    if isinstance(tensors, dict) and 0 < rows < capacity:
+        state = {**state, "_storage": {**storage, "_storage": _rows(tensors, lambda v: v[:rows].clone()
+                                                                   if v.shape[0] == capacity else v)}}
+    return state
+
+
+def _rows(tensors: dict, fn: Any) -> dict:
+    """A storage's state dict with ``fn`` applied to its tensors (its TensorDict metadata, the
+    batch size kept as an attribute of the dict, kept as it is)."""
+    out = copy.copy(tensors)
+    for key, value in tensors.items():
+        if isinstance(value, torch.Tensor) and value.dim():
+            out[key] = fn(value)
+    return out
+
+
 def restore_buffer(buffer: TensorDictReplayBuffer | None, payload: dict[str, Any], run_dir: Path) -> None:
-    """Refill a run's replay buffer from its checkpoint (refused if the checkpoint holds none)."""
+    """Refill a run's replay buffer from its checkpoint (refused if the checkpoint holds none);
+    filled rows only (:func:`buffer_state`) get the storage's capacity back, the rest zeros."""
     if buffer is None:
         return
     if "buffer" not in payload:
         raise CheckpointError(f"the checkpoint in {run_dir} holds no replay buffer "
                               "(experiment.keep_buffer_in_checkpoint=false): it cannot be resumed exactly; "
                               "start a new run")
-    buffer.load_state_dict(payload["buffer"])
+    state = payload["buffer"]
+    storage = state["_storage"]
+    rows, capacity = int(storage.get("_len", 0)), buffer.storage.max_size
+    tensors = storage.get("_storage")
+    if isinstance(tensors, dict) and 0 < rows < capacity:
+        def full(v: torch.Tensor) -> torch.Tensor:
+            if v.shape[0] != rows:
+                return v
+            out = v.new_zeros((capacity, *v.shape[1:]))
+            out[:rows] = v
+            return out
+
+        state = {**state, "_storage": {**storage, "_storage": _rows(tensors, full)}}
+    buffer.load_state_dict(state)
 
 
 def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float]:
@@ -128,11 +167,33 @@ def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float
     return row
 
 
+def out_of_memory(exc: BaseException | None) -> bool:
+    """``exc``, or an error it was raised while handling, is an allocation that failed (Python's
+    MemoryError, torch's allocator's RuntimeError): torch's archive writer, closing after a
+    MemoryError, raises a RuntimeError of its own about the archive."""
+    seen = 0
+    while exc is not None and seen < 8:
+        text = str(exc).lower()
+        if isinstance(exc, MemoryError) or any(w in text for w in ("can't allocate memory", "out of memory",
+                                                                    "not enough memory")):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
+
+
 def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
     """:func:`~flock_torchrl.policies.checkpoint.save_checkpoint` of a training run; a write
-    that fails (a full disk, a lost mount) is a :class:`CheckpointError` naming the fix."""
+    that fails (a full disk, a lost mount, memory that runs out) is a :class:`CheckpointError`
+    naming the fix, and the last good checkpoint is kept (the write is atomic)."""
     try:
         return save_checkpoint(state, path, kind="training")
+    except (MemoryError, RuntimeError) as exc:  # torch's allocator says RuntimeError
+        if isinstance(exc, RuntimeError) and not out_of_memory(exc):
+            raise
+        kept = f"the last good checkpoint is kept at {path}" if path.exists() else "no checkpoint was written yet"
+        raise CheckpointError(f"writing the checkpoint {path} ran out of memory; {kept}; "
+                              "lower algo.buffer_size (the replay buffer it saves) or free memory, then "
+                              f"{'resume' if path.exists() else 'run again'}") from None
     except OSError as exc:
         failure = write_failure(OSError(exc.errno, exc.strerror, str(path)))
         if failure is None:
@@ -144,5 +205,5 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "evaluation_row", "make_collectors", "make_env", "make_envs", "replay_buffer",
-           "restore_buffer", "write_checkpoint"]
+__all__ = ["Learner", "TrainResult", "buffer_state", "evaluation_row", "make_collectors", "make_env", "make_envs",
+           "replay_buffer", "restore_buffer", "write_checkpoint"]

@@ -19,7 +19,8 @@ changes is what each piece holds:
   does later is kept), so each member's budget means what a solo run's does.
 
 Each member's episodes go to ``<run>/seed<s>/episodes.csv``, its scalars to the logger under
-``seed<s>/...``; the checkpoint holds every member's slim policy (``members``), which
+``seed<s>/...`` (their population mean, and the loop's speed, under a solo run's names: ``train/...``,
+``eval/...``, ``perf/frames_per_s``); the checkpoint holds every member's slim policy (``members``), which
 ``make ship-checkpoints`` exports as ``<policy>/seed<s>.pt``.
 """
 
@@ -180,10 +181,17 @@ class PopulationTraining(Training):
             if recent:
                 log[f"seed{seed}/train/episode_reward"] = sum(r for r, _ in recent) / len(recent)
                 log[f"seed{seed}/train/success_rate"] = sum(s for _, s in recent) / len(recent)
-        success = [log[f"seed{s}/train/success_rate"] for s in self.seeds if f"seed{s}/train/success_rate" in log]
-        if success:
-            log["train/success_rate"] = sum(success) / len(success)
-        log.update(rates(self.split, self.counters, self.k, "perf/member_"))
+        # The population's mean of every member's scalar, under the solo run's names.
+        names = [*stats, "episode_reward", "success_rate"]
+        for name in names:
+            values = [log[f"seed{s}/train/{name}"] for s in self.seeds if f"seed{s}/train/{name}" in log]
+            if values:
+                log[f"train/{name}"] = sum(values) / len(values)
+        # Every member's frames and updates per second of the loop (the worlds this process steps):
+        # under the solo run's names, and as before under perf/member_*.
+        speed = rates(self.split, self.counters, self.k)
+        log.update(speed)
+        log.update({k.replace("perf/", "perf/member_"): v for k, v in speed.items()})
         self._log(log)
         if self.progress is not None:
             self.progress.update(self.counters, log)

@@ -224,7 +224,7 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
     return EvaluationResult(
         policy=handle.name, scenario=env.cfg.name, reading=env.cfg.reading, seed=seed,
         episodes={k: records[k].clone() for k in METRIC_KEYS}, rollout_steps=steps,
-        wall_time_s=time.perf_counter() - start, source=handle.origin)
+        wall_time_s=time.perf_counter() - start, source=handle.source)
 
 
 def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = None, seed: int | None = None,

@@ -94,7 +94,21 @@ def resume_payload(cfg: TrainConfig, resolved: dict[str, Any], run_dir: Path) ->
         raise CheckpointError(f"the checkpoint in {run_dir} was trained with other settings ({shown}"
                               f"{' ...' if len(diff) > 6 else ''}); only {', '.join(cfg.resumable)} may "
                               "change on resume (nothing was changed)")
+    check_episode_logs(payload, run_dir)
     return payload
+
+
+def check_episode_logs(payload: dict, run_dir: Path) -> None:
+    """A resume continues the run's episode logs (``episodes.csv``, a population member's
+    ``seed<s>/episodes.csv``): one that is gone while the checkpoint counts episodes is refused,
+    naming it (docs/reliability.md says why it is not rebuilt)."""
+    members = payload.get("members") or []
+    logs = ([(run_dir / f"seed{m['seed']}" / "episodes.csv", int(m.get("episodes_seen", 0))) for m in members]
+            if members else [(run_dir / "episodes.csv", int(payload["counters"].get("episodes", 0)))])
+    for path, episodes in logs:
+        if episodes and not path.is_file():
+            raise CheckpointError(f"{path} is missing, but the checkpoint in {run_dir} counts {episodes} episodes "
+                                  "logged there: put it back to resume (nothing was changed), or start a new run")
 
 
 def checkpoint_meta(cfg: TrainConfig, env: Any) -> dict[str, Any]:
@@ -128,5 +142,5 @@ def hydra_settings() -> dict[str, Any]:
             "callbacks": OmegaConf.to_container(hydra.callbacks, resolve=True) if hydra.callbacks else {}}
 
 
-__all__ = ["checkpoint_meta", "config_differences", "hydra_output_dir", "hydra_settings", "make_train_config",
+__all__ = ["check_episode_logs", "checkpoint_meta", "config_differences", "hydra_output_dir", "hydra_settings", "make_train_config",
            "memory_estimate", "prepare", "resume_payload"]

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 from typing import Callable
 
 from ..io import write_text
-from ..policies.checkpoint import LAST, load_checkpoint, policy_payload, save_checkpoint
+from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint, slim_payload
 from .schedule import Schedule
 
 
@@ -22,8 +22,11 @@ _SOLO = re.compile(r"seed(\d+)")
 _POPULATION = re.compile(r"seed(\d+)__population-(\d+)")
 
 
-def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[tuple[Path, str, str, int | None]]:
-    """``(last.pt, policy, seed<k>, member)`` of every finished run under ``<root>/<policy>/``:
+Run = tuple[Path, str, str, "int | None", dict]  # (last.pt, policy, seed<k>, member, slim payload)
+
+
+def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Run]:
+    """``(last.pt, policy, seed<k>, member, slim policy)`` of every finished run under ``<root>/<policy>/``:
     a solo run ``seed<k>/`` (``member`` None) and each member of a population
     ``seed<s>__population-<K>/``; runs with other overrides are not shipped. A run still
     training, or stopped early, is skipped with a message."""
@@ -39,29 +42,46 @@ def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[tuple
             continue
         policy = last.parent.parent.name
         if solo:
-            runs.append((last, policy, last.parent.name, None))
+            runs.append((last, policy, last.parent.name, None, slim_payload(payload, last)))
         else:
-            runs += [(last, policy, f"seed{m['seed']}", k) for k, m in enumerate(payload["members"])]
+            runs += [(last, policy, f"seed{m['seed']}", k, slim_payload(payload, last, k))
+                     for k, m in enumerate(payload["members"])]
+        del payload  # its replay buffer: only the slim policies are kept
     return runs
 
 
-def ship_collection(runs: list[tuple[Path, str, str, int | None]], dest: Path, reading: str, title: str,
-                    source: str, log: Callable[[str], None] = print) -> list[Path]:
-    """Export each run (or population member) of :func:`_finished_runs` to
-    ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat layout, ``<dest>/<policy>_seed<k>.pt``,
-    move to their place) and write ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
-    shipped = []
-    seen: dict[Path, Path] = {}
-    exported: dict[Path, dict] = {}
-    for last, policy, seed, member in runs:
+Shipment = list[tuple[Path, Path, int | None, dict]]  # (last.pt, target, member, slim payload)
+
+
+def plan_collection(runs: list[Run], dest: Path, reading: str) -> tuple[Shipment, list[str]]:
+    """What :func:`ship_collection` would write for ``runs`` into ``dest`` (each run's slim
+    policy, read and checked), and every conflict it would meet: two runs holding the same
+    ``<policy> seed<k>`` (a solo run and a population member, say), a run of another reading."""
+    plan: Shipment = []
+    seen: dict[Path, str] = {}
+    conflicts = []
+    for last, policy, seed, member, slim in runs:
         target = dest / policy / f"{seed}.pt"
+        what = f"{last}" + ("" if member is None else f" (member {member})")
         if target in seen:
-            raise ValueError(f"{last} and {seen[target]} both hold {policy} {seed}: ship one of them (move the "
-                             "other run folder away)")
-        seen[target] = last
-        slim = policy_payload(last, member)  # read once: checked, written, listed
+            conflicts.append(f"{seen[target]} and {what} both hold {policy} {seed}")
+            continue
+        seen[target] = what
         if slim["meta"]["reading"] != reading:
-            raise ValueError(f"{last} was trained under another reading than {reading!r}")
+            conflicts.append(f"{what} was trained under the reading {slim['meta']['reading']!r}, not {reading!r}")
+            continue
+        plan.append((last, target, member, slim))
+    return plan, conflicts
+
+
+def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source: str,
+                    log: Callable[[str], None] = print) -> list[Path]:
+    """Write the slim policies of a :func:`plan_collection` plan (found free of conflicts) to
+    ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat layout, ``<dest>/<policy>_seed<k>.pt``,
+    move to their place) and ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
+    shipped = []
+    exported: dict[Path, dict] = {}
+    for last, target, member, slim in plan:
         save_checkpoint(slim, target, kind="policy")
         log(f"{last} -> {target}" + ("" if member is None else f" (member {member})"))
         shipped.append(target)
@@ -95,6 +115,12 @@ def ship_collection(runs: list[tuple[Path, str, str, int | None]], dest: Path, r
     return shipped
 
 
+def refusal(conflicts: list[str]) -> str:
+    """One line: every conflict, and that nothing was written."""
+    return (f"nothing was shipped, {len(conflicts)} conflict(s): " + "; ".join(conflicts)
+            + " (ship one run of each: move the others' folders away)")
+
+
 def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_dir: Path,
                      paper_experiment: str, paper_recipe_dir: Path,
                      log: Callable[[str], None] = print, collections: dict[str, str] | None = None) -> list[Path]:
@@ -102,18 +128,24 @@ def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_
     overrides only) to ``<checkpoints>/<reading>/<policy>/seed<k>.pt``, the paper recipe's
     ``<runs>/<paper_experiment>/<reading>/...`` to ``<paper_recipe_dir>/<policy>/seed<k>.pt``,
     and each further experiment of ``collections`` (experiment -> folder, e.g. ``mixed``) to
-    ``<checkpoints>/<reading>/<folder>/<policy>/seed<k>.pt``."""
-    fast = _finished_runs(runs_dir / experiment / reading, log)
-    paper = _finished_runs(runs_dir / paper_experiment / reading, log)
-    shipped = (ship_collection(fast, checkpoints_dir / reading, reading, "Shipped checkpoints",
-                               f"{runs_dir}/{experiment}/{reading}/", log)
-               + ship_collection(paper, paper_recipe_dir, reading, "Shipped checkpoints of the paper's recipe",
-                                 f"{runs_dir}/{paper_experiment}/{reading}/", log))
-    for other, folder in (collections or {}).items():
-        runs = _finished_runs(runs_dir / other / reading, log)
-        shipped += ship_collection(runs, checkpoints_dir / reading / folder, reading,
-                                   f"Shipped checkpoints of experiment={other}", f"{runs_dir}/{other}/{reading}/", log)
+    ``<checkpoints>/<reading>/<folder>/<policy>/seed<k>.pt``. Every run is read and every
+    conflict found (:func:`plan_collection`) before the first file is written: a conflict is one
+    :class:`CheckpointError` listing them all, and ``checkpoints/`` is left as it was."""
+    collections_ = [(experiment, checkpoints_dir / reading, "Shipped checkpoints"),
+                    (paper_experiment, paper_recipe_dir, "Shipped checkpoints of the paper's recipe"),
+                    *((other, checkpoints_dir / reading / folder, f"Shipped checkpoints of experiment={other}")
+                      for other, folder in (collections or {}).items())]
+    plans, conflicts = [], []
+    for name, dest, title in collections_:
+        plan, found = plan_collection(_finished_runs(runs_dir / name / reading, log), dest, reading)
+        plans.append((plan, dest, title, f"{runs_dir}/{name}/{reading}/"))
+        conflicts += found
+    if conflicts:
+        raise CheckpointError(refusal(conflicts))
+    shipped = []
+    for plan, dest, title, source in plans:
+        shipped += ship_collection(plan, dest, reading, title, source, log)
     return shipped
 
 
-__all__ = ["ship_checkpoints", "ship_collection"]
+__all__ = ["plan_collection", "ship_checkpoints", "ship_collection"]

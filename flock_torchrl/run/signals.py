@@ -30,11 +30,23 @@ SHUTDOWN_TIMEOUT = 30.0
 
 
 class Stopped(BaseException):
-    """A stop signal that cannot wait for the end of the update."""
+    """A stop signal that cannot wait for the end of the update. ``resume``: the command that
+    continues the training run it aborted (``None``: it stopped an app outside a training loop)."""
 
-    def __init__(self, signum: int) -> None:
+    def __init__(self, signum: int, resume: str | None = None) -> None:
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
+        self.resume = resume
+
+    def message(self) -> str:
+        """What the app prints when it exits on this signal (one line)."""
+        name = signal.Signals(self.signum).name
+        if self.resume is not None:
+            how = f"resume with: {self.resume}" if self.resume else "resume the run from its folder"
+            return (f"stopped by {name} during training (a second signal aborts at once): the update in progress "
+                    f"is lost, the last checkpoint, if any, is kept; {how}")
+        return (f"stopped by {name} outside a training loop (starting, checking, or finishing): files are written "
+                "whole or not at all, and the last checkpoint, if any, is kept")
 
 
 class TrainingInterrupted(Exception):
@@ -55,10 +67,11 @@ class Signals:
     its update and checkpoints); a second one, or any while :attr:`abort` is set, raises
     :class:`Stopped`. Outside the main thread nothing is installed."""
 
-    def __init__(self) -> None:
+    def __init__(self, resume: str | None = None) -> None:
         self.received = 0
         self.abort = False
         self.previous: dict[int, Any] = {}
+        self.resume = resume  # the command that continues the run (said when a signal aborts it)
 
     def __enter__(self) -> "Signals":
         if threading.current_thread() is threading.main_thread():
@@ -69,7 +82,7 @@ class Signals:
     def handle(self, signum: int, frame: Any) -> None:
         if self.received or self.abort:
             self.received = self.received or signum
-            raise Stopped(self.received)
+            raise Stopped(self.received, self.resume or "")
         self.received = signum
         print(f"\n{signal.Signals(signum).name} received: finishing this update and writing a checkpoint "
               "(Ctrl-C again aborts at once)", file=sys.stderr, flush=True)

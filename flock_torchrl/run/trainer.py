@@ -27,8 +27,8 @@ from ..config import TrainConfig
 from ..policies.checkpoint import LAST
 from ..policies.learners import make_learner
 from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, agentwise_done, episode_rows, per_uav
-from .parts import (Learner, TrainResult, evaluation_row, make_collectors, make_env, make_envs, replay_buffer,
-                    restore_buffer, write_checkpoint)
+from .parts import (Learner, TrainResult, buffer_state, evaluation_row, make_collectors, make_env, make_envs,
+                    replay_buffer, restore_buffer, write_checkpoint)
 from .run_folder import EpisodeLog, logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
 from .schedule import Schedule, evaluated_at_end
 from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra_settings, make_train_config,
@@ -88,7 +88,7 @@ class Training:
         finished = schedule.finished(self.counters["frames"], self.counters["episodes"], self.counters["seconds"])
         if schedule.done(self.counters, self.evaluations):
             return self._result(self.ckpt_path)  # a finished run resumes to a no-op
-        with Signals() as signals:
+        with Signals(resume_command(self.run_dir)) as signals:
             self._build(payload)
             # Only now, with the checkpoint (if any) known to fit, does the run folder change.
             write_run_config(self.run_dir, self.resolved, hydra_settings())
@@ -282,7 +282,7 @@ class Training:
         if exp.workers == 1:
             state["env_state"] = [e.get_state() for e in self.envs] if self.mixed else self.env.get_state()
         if self.buffer is not None and exp.keep_buffer_in_checkpoint:
-            state["buffer"] = self.buffer.state_dict()
+            state["buffer"] = buffer_state(self.buffer)
         return state
 
     def _save(self) -> Path:

@@ -9,6 +9,7 @@ with one :class:`~flock_torchrl.config.ConfigError` naming the key that costs mo
 estimate and the limit. The estimates (bytes) are upper bounds of the big tensors, measured
 against peak resident memory in ``tests/test_faults.py``:
 
+* :func:`train_bytes` — a training run, its checkpoint writes included;
 * :func:`world_bytes` — one batched world (``[N]`` state and sensing, ``[N, N]`` pairwise terms);
 * :func:`spawn_check_bytes` — :func:`~flock_torchrl.world.spawn.check_spawn_feasible`'s lattices
   ``[360, 16, P, 2]`` and their distances to the obstacles;
@@ -157,7 +158,10 @@ def spawn_check_bytes(scenario: Any, centres: int = 360, lattices: int = 16) -> 
 
 def train_bytes(cfg: Any) -> dict[str, int]:
     """What a training run holds, by the key that sets it: the replay buffer (swarm transitions
-    of every key the learner stores), the training worlds and the evaluation's worlds."""
+    of every key the learner stores; with ``experiment.keep_buffer_in_checkpoint``, a checkpoint's
+    write besides: a copy of the filled rows and their serialised bytes, at most the rows
+    ``experiment.max_frames`` fills, :func:`~flock_torchrl.run.parts.buffer_state`), the training
+    worlds and the evaluation's worlds."""
     from .sensors import observation_size, state_size
 
     s, exp, sizes = cfg.scenario, cfg.experiment, cfg.train_scenarios
@@ -166,7 +170,10 @@ def train_bytes(cfg: Any) -> dict[str, int]:
     members = int(getattr(cfg, "population", 1) or 1)   # a population holds K buffers and K x B worlds
     parts = {}
     if cfg.algo.name in ("sac", "ddpg"):
-        parts["algo.buffer_size"] = members * max(1, math.ceil(cfg.algo.buffer_size / n)) * n * per_uav
+        capacity = max(1, math.ceil(cfg.algo.buffer_size / n)) * n          # UAV transitions, per member
+        filled = min(capacity, exp.max_frames * n) if exp.max_frames else capacity  # the most the run writes
+        written = 2 * filled if getattr(exp, "keep_buffer_in_checkpoint", True) else 0
+        parts["algo.buffer_size"] = members * (capacity + written) * per_uav
     worlds = "experiment.swarm_sizes" if exp.swarm_sizes else "experiment.num_envs"
     parts[worlds] = members * sum(exp.num_envs // len(sizes) * world_bytes(t) for t in sizes)
     parts["experiment.eval_episodes"] = exp.eval_episodes * world_bytes(s)
