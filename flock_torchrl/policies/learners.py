@@ -229,7 +229,7 @@ class PPOLearner:
         size = min(self.cfg.minibatch_size, n)
         stats: dict[str, torch.Tensor] = {}
         for _ in range(self.cfg.epochs):
-            order = torch.randperm(n)
+            order = torch.randperm(n, device=flat.device)
             for start in range(0, n - size + 1, size):  # minibatches of one batch: PPO's epochs
                 losses = self.loss_fn(flat[order[start:start + size]])
                 terms = {"loss_objective": losses["loss_objective"], "loss_critic": losses["loss_critic"]}

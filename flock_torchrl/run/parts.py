@@ -57,13 +57,30 @@ class TrainResult:
         return split_line(self.split)
 
 
+def rng_state(device: torch.device) -> dict[str, torch.Tensor]:
+    """Torch's global generators a run draws from: the CPU's, and the CUDA device's when the
+    run is on one (its policy and losses sample there), so that a resume continues bit for bit."""
+    state = {"torch": torch.get_rng_state()}
+    if device.type == "cuda":
+        state["cuda"] = torch.cuda.get_rng_state(device)
+    return state
+
+
+def restore_rng(saved: dict[str, torch.Tensor], device: torch.device) -> None:
+    """Put back :func:`rng_state` (a checkpoint of a CPU run resumed on a GPU keeps the
+    device's own seeding)."""
+    torch.set_rng_state(saved["torch"])
+    if device.type == "cuda" and "cuda" in saved:
+        torch.cuda.set_rng_state(saved["cuda"], device)
+
+
 def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, parent: int,
              scenario: Any = None) -> FlockingEnv:
     """A training env (in a collector process, one that leaves stop signals to the main process)."""
     if os.getpid() != parent:
         ignore_stop_signals()
     return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
-                       compile_step=cfg.compile_step)
+                       compile_step=cfg.compile_step, check_actions=False)
 
 
 def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:
@@ -144,5 +161,5 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "evaluation_row", "make_collectors", "make_env", "make_envs", "replay_buffer",
+__all__ = ["Learner", "TrainResult", "evaluation_row", "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
            "restore_buffer", "write_checkpoint"]

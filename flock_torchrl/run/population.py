@@ -41,7 +41,7 @@ from .run_folder import EpisodeLog
 from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, AgentwiseDone, episode_rows, per_uav
 from .setup import checkpoint_meta
 from .signals import start_resource_tracker
-from .parts import evaluation_row, replay_buffer, restore_buffer
+from .parts import evaluation_row, replay_buffer, restore_buffer, restore_rng
 from .timing import TimeSplit, rates
 from .trainer import Training
 
@@ -61,7 +61,7 @@ class PopulationTraining(Training):
         self.member_episodes = [0] * self.k
         self.member_evaluations: list[list[dict[str, float]]] = [[] for _ in self.seeds]
         self.final: list[dict[str, Any] | None] = [None] * self.k   # a member's frozen result, once final
-        self.split = TimeSplit("members")  # and per-member bookkeeping (episode rows)
+        self.split = TimeSplit("members", device=cfg.device)  # and per-member bookkeeping (episode rows)
 
     # ---------------------------------------------------------------- the pieces
     def _build(self, payload: dict | None) -> None:
@@ -74,7 +74,7 @@ class PopulationTraining(Training):
         self.mixed = bool(exp.swarm_sizes)
         scenarios = cfg.train_scenarios if self.mixed else [cfg.train_scenario]
         self.envs = [PopulationEnv(scenario, self.k, exp.num_envs // len(scenarios), [s * 1000 + i for s in self.seeds],
-                                   device=device, compile_step=cfg.compile_step)
+                                   device=device, compile_step=cfg.compile_step, check_actions=False)
                      for i, scenario in enumerate(scenarios)]
         self.env = env = self.envs[0]
         self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds)
@@ -95,7 +95,7 @@ class PopulationTraining(Training):
                            for one in self.envs]
         self.collector = self.collectors[0]
         if payload is not None:
-            torch.set_rng_state(payload["rng"]["torch"])
+            restore_rng(payload["rng"], device)
         self.meta = {**checkpoint_meta(cfg, env), "population": self.k, "seeds": list(self.seeds)}
         self._eval_actor = copy.deepcopy(learner.actor)
 

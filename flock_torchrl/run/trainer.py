@@ -28,7 +28,7 @@ from ..policies.checkpoint import LAST
 from ..policies.learners import make_learner
 from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, agentwise_done, episode_rows, per_uav
 from .parts import (Learner, TrainResult, evaluation_row, make_collectors, make_env, make_envs, replay_buffer,
-                    restore_buffer, write_checkpoint)
+                    restore_buffer, restore_rng, rng_state, write_checkpoint)
 from .run_folder import EpisodeLog, logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
 from .schedule import Schedule, evaluated_at_end
 from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra_settings, make_train_config,
@@ -47,7 +47,7 @@ class Training:
         self.ckpt_path = run_dir / LAST
         self.counters = {"frames": 0, "episodes": 0, "updates": 0, "iterations": 0, "seconds": 0.0}
         self.evaluations: list[dict[str, float]] = []
-        self.split = TimeSplit()
+        self.split = TimeSplit(device=cfg.device)
         self.saved_frames = -1            # frames of the last checkpoint this process wrote
         self.start = time.perf_counter()
         self.progress: Progress | None = None
@@ -75,7 +75,7 @@ class Training:
         self.collectors = make_collectors(cfg, self.envs, factory, self.learner.collector_policy, steps, init_random,
                                           device)
         if payload is not None:
-            torch.set_rng_state(payload["rng"]["torch"])
+            restore_rng(payload["rng"], device)
         self.meta = checkpoint_meta(cfg, self.env)
 
     def run(self) -> TrainResult:
@@ -276,7 +276,7 @@ class Training:
         state = {
             "meta": self.meta, "config": self.resolved, "counters": dict(self.counters),
             "actor": self.learner.actor.state_dict(), "learner": self.learner.state_dict(),
-            "rng": {"torch": torch.get_rng_state()}, "evaluations": self.evaluations,
+            "rng": rng_state(torch.device(self.cfg.device)), "evaluations": self.evaluations,
             "curve": torch.tensor(self.episode_log.rows(), dtype=torch.float64).reshape(-1, len(EPISODE_COLUMNS)),
         }
         if exp.workers == 1:
