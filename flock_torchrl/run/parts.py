@@ -20,6 +20,7 @@ from torchrl.envs.utils import ExplorationType
 from ..config import TrainConfig
 from ..io import write_failure
 from ..policies.checkpoint import CheckpointError, save_checkpoint
+from ..policies.learners import CUDAGRAPH_WARMUP
 from ..world.env import FlockingEnv
 from .batches import AgentwiseDone
 from .signals import ignore_stop_signals, start_workers
@@ -36,6 +37,7 @@ class Learner(Protocol):
 
     def on_frames(self, frames: int) -> None: ...       # frames just collected (noise annealing)
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]: ...
+    def check(self) -> None: ...                         # FloatingPointError if a captured update diverged
     def state_dict(self) -> dict[str, Any]: ...
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
 
@@ -103,7 +105,7 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
     exp = cfg.experiment
     kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 else exp.num_envs) * steps, total_frames=-1,
                   device=device, init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
-                  auto_register_policy_transforms=False)
+                  auto_register_policy_transforms=False, cudagraph_policy=policy_capture(cfg))
     def single(env: FlockingEnv) -> Collector:
         return Collector(env, policy, track_traj_ids=False, postproc=AgentwiseDone(env.n_agents), **kwargs)
 
@@ -111,6 +113,12 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
         [functools.partial(factory, cfg.seed * 1000 + w) for w in range(exp.workers)], policy,
         postproc=AgentwiseDone(envs[0].n_agents), **kwargs)) if exp.workers > 1 else single(envs[0])
     return [first, *(single(env) for env in envs[1:])]
+
+
+def policy_capture(cfg: TrainConfig) -> dict[str, int] | None:
+    """A collector's ``cudagraph_policy``: with ``cudagraphs``, the policy's forward captured as
+    the update is (tensordict's ``CudaGraphModule``; a pass-through without CUDA)."""
+    return {"warmup": CUDAGRAPH_WARMUP} if cfg.cudagraphs else None
 
 
 def replay_buffer(cfg: TrainConfig, n_uavs: int, device: torch.device, **kwargs: Any) -> TensorDictReplayBuffer:
@@ -161,5 +169,5 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "evaluation_row", "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
+__all__ = ["Learner", "TrainResult", "evaluation_row", "policy_capture", "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
            "restore_buffer", "write_checkpoint"]

@@ -60,7 +60,8 @@ class Training:
         self.mixed = bool(exp.swarm_sizes)
         self.envs, factory = make_envs(cfg, device)
         self.env = self.envs[0]
-        self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss)
+        self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss,
+                                             cudagraphs=cfg.cudagraphs)
         off_policy = self.learner.off_policy
         self.buffer = replay_buffer(cfg, 1 if self.mixed else cfg.scenario.n_uavs, device) if off_policy else None
         if payload is not None:
@@ -210,6 +211,7 @@ class Training:
         """What a subclass restores from a checkpoint beyond the counters and evaluations."""
 
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
+        self.learner.check()  # a captured update's finite-loss flags, read where the host reads anyway
         log = {f"train/{k}": float(v) for k, v in stats.items()}
         if self.recent:
             log["train/episode_reward"] = sum(r for r, _ in self.recent) / len(self.recent)
@@ -286,6 +288,7 @@ class Training:
         return state
 
     def _save(self) -> Path:
+        self.learner.check()  # never a checkpoint of a diverged learner
         self.counters["seconds"] = time.perf_counter() - self.start
         path = write_checkpoint(self._state(), self.ckpt_path)
         self.saved_frames = self.counters["frames"]
