@@ -10,7 +10,8 @@ buffer, sampling, update: the run's time split without evaluation, checkpoints o
 compiled update) and prints where that time went. Each row trains in a fresh child process,
 so its peak resident memory (``ru_maxrss``) is its own: a population's memory per member is its
 peak over the members, and what each member beyond the first adds is the population's peak less
-the solo run's, over ``members - 1``. The GPU's rows are :mod:`benchmarks.gpu`'s. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+the solo run's, over ``members - 1``. The GPU's rows are :mod:`benchmarks.gpu`'s. Run with one
+thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations

@@ -335,5 +335,6 @@ def make_policy(policy: Any, env: Any, device: str | None = None) -> Module:
     return handle.build(env)
 
 
-__all__ = ["PolicyHandle", "checkpoint_handle", "module_device", "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
+__all__ = ["PolicyHandle", "checkpoint_handle", "module_device",
+           "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
            "policy_id", "resolve", "rule_handle", "shipped_checkpoints"]
