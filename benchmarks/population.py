@@ -10,8 +10,8 @@ buffer, sampling, update: the run's time split without evaluation, checkpoints o
 compiled update) and prints where that time went. Each row trains in a fresh child process,
 so its peak resident memory (``ru_maxrss``) is its own: a population's memory per member is its
 peak over the members, and what each member beyond the first adds is the population's peak less
-the solo run's, over ``members - 1``. Where CUDA exists, the solo and population rows run once more
-on the GPU. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+the solo run's, over ``members - 1``. The GPU's rows are :mod:`benchmarks.gpu`'s. Run with one
+thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations
@@ -79,23 +79,34 @@ def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
     return flop / 1e6, rate / 1e9
 
 
-def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str = "cpu") -> dict:
+def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str = "cpu",
+            cudagraphs: str = "false") -> dict:
+    """One training run; its loop's member-updates/s and split, its set-up time (the run's wall
+    time outside the loop, evaluation and checkpoints: envs, learner, collectors, first
+    compilation), its peak memory (and the GPU's, on one)."""
     overrides = [f"population={members}", f"experiment.max_frames={frames}", "experiment.max_episodes=0",
                  "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "experiment.checkpoint_every_frames=0",
-                 "progress=false", "logger=none", f"compile={compile}", "reading=paper_fit", f"device={device}"]
+                 "progress=false", "logger=none", f"compile={compile}", "reading=paper_fit", f"device={device}",
+                 f"cudagraphs={cudagraphs}"]
     cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, overrides))
-    result = train(cfg, folder / f"{recipe}_{members}_{compile}_{device}")
+    start = time.perf_counter()
+    result = train(cfg, folder / f"{recipe}_{members}_{compile}_{device}_{cudagraphs}")
+    wall = time.perf_counter() - start
     loop = sum(result.split.get(k, 0.0) for k in LOOP)
-    return {"recipe": recipe, "members": members, "compile": compile, "device": device, "updates": result.updates,
-            "member_updates_per_s": members * result.updates / loop, "loop_s": loop,
+    gpu = torch.cuda.max_memory_allocated() / 2**20 if device.startswith("cuda") else 0.0
+    return {"recipe": recipe, "members": members, "compile": compile, "device": device, "cudagraphs": cudagraphs,
+            "updates": result.updates, "member_updates_per_s": members * result.updates / loop, "loop_s": loop,
+            "setup_s": wall - sum(result.split.values()),
             "split": {k: result.split.get(k, 0.0) / loop for k in LOOP if result.split.get(k, 0.0)},
-            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}   # Linux: KiB
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,   # Linux: KiB
+            "gpu_peak_mb": gpu}
 
 
-def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str) -> dict:
+def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str,
+                 cudagraphs: str = "false") -> dict:
     """:func:`run_row` in a fresh Python process (its peak memory is its own)."""
     done = subprocess.run([sys.executable, __file__, "--row", recipe, str(members), str(frames), compile, str(folder),
-                           device], capture_output=True, text=True)
+                           device, cudagraphs], capture_output=True, text=True)
     if done.returncode:
         raise RuntimeError(f"benchmark row {recipe} x{members} failed:\n{done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -134,16 +145,18 @@ def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int =
 
 
 def population_lines(frames: int = 3000, members: int = 10, recipes: str = "paper,fast",
-                     print_each: bool = True) -> list[str]:
-    """The rows of every recipe, each line printed as soon as it is measured."""
+                     print_each: bool = True, rates: dict | None = None) -> list[str]:
+    """The rows of every recipe, each line printed as soon as it is measured; ``rates``, if
+    given, receives each row's member-updates/s under ``(recipe, members, compile)``."""
     lines = []
+    rates = {} if rates is None else rates
 
     def say(line: str) -> None:
         lines.append(line)
         if print_each:
             print(line, flush=True)
 
-    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    devices = ["cpu"]  # the GPU's rows, captured, are benchmarks/gpu.py's
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in recipes.split(","):
             n = frames if recipe == "paper" else max(frames, 4096)
@@ -152,9 +165,9 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                     f"core's batched matmul at the update's shape runs {peak:.1f} GFLOP/s, so no batching of the "
                     f"updates passes {1000 * peak / mflop:.0f} member-updates/s of update time on one core")
             say(line)
-            rates = interleaved_updates(recipe, members)
-            solo, pop = (statistics.median(rates[k]) for k in ("solo", "population"))
-            line = (f"population {recipe:5s} cpu  the update alone, interleaved in one process ({len(rates['solo'])} "
+            alone = interleaved_updates(recipe, members)
+            solo, pop = (statistics.median(alone[k]) for k in ("solo", "population"))
+            line = (f"population {recipe:5s} cpu  the update alone, interleaved in one process ({len(alone['solo'])} "
                     f"rounds, medians): solo {solo:.0f} updates/s, population of {members} {pop:.0f} member-updates/s "
                     f"= {pop / solo:.2f}x")
             say(line)
@@ -164,6 +177,7 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                 base = solo_mb = None
                 for k, compile in plan:
                     r = row_in_child(recipe, k, n, compile, Path(tmp), device)
+                    rates[recipe, k, compile] = r["member_updates_per_s"]
                     base = base or r["member_updates_per_s"]
                     solo_mb = solo_mb or r["peak_mb"]
                     in_update = r["member_updates_per_s"] / max(r["split"].get("update", 0.0), 1e-9)
@@ -176,8 +190,6 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                             f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; the update alone "
                             f"{in_update:.0f} member-updates/s, {in_update * mflop / 1000:.1f} GFLOP/s; {memory})")
                     say(line)
-    if len(devices) == 1:
-        say("population rows on a GPU: no CUDA device here (they run where torch.cuda.is_available())")
     return lines
 
 
@@ -186,13 +198,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=3000)
     parser.add_argument("--members", type=int, default=10)
     parser.add_argument("--recipes", default="paper,fast")
-    parser.add_argument("--row", nargs=6, metavar=("RECIPE", "MEMBERS", "FRAMES", "COMPILE", "FOLDER", "DEVICE"),
+    parser.add_argument("--row", nargs=7, metavar=("RECIPE", "MEMBERS", "FRAMES", "COMPILE", "FOLDER", "DEVICE",
+                                                   "CUDAGRAPHS"),
                         help="one row, printed as JSON (what population_lines runs in a child process)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.row:
-        recipe, k, frames, compile, folder, device = args.row
-        print(json.dumps(run_row(recipe, int(k), int(frames), compile, Path(folder), device)))
+        recipe, k, frames, compile, folder, device, cudagraphs = args.row
+        print(json.dumps(run_row(recipe, int(k), int(frames), compile, Path(folder), device, cudagraphs)))
         return
     population_lines(args.frames, args.members, args.recipes)
 

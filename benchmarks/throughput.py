@@ -10,7 +10,8 @@
   was before the speed work (``MultiAgentMLP`` networks, three Adam optimisers), same batches;
 * **paper loop**: the paper recipe's whole training loop (one env, one update per step),
   compiled against eager, in updates/s, with each run's time split;
-* **GPU** (when CUDA is present): the env at B = 65,536 and the updates on the device.
+* **GPU** (when CUDA is present; :mod:`benchmarks.gpu`): the env at B = 65,536, the captured
+  update, the loops solo and as populations of 10 and 80, and the projection of the paper's study.
 
 Timings alternate the candidates and keep each one's best of several repetitions, so load
 from other processes hits both sides alike; the ratios are what to read.
@@ -39,6 +40,7 @@ from flock_torchrl.policies.learners import SACLearner, compiled
 from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
+from benchmarks.gpu import gpu_lines, projection_line
 from benchmarks.population import population_lines
 from benchmarks.reset import reset_lines
 from benchmarks.threed import threed_lines
@@ -291,17 +293,6 @@ def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[
     return rows, splits
 
 
-def gpu_rows(device: str = "cuda") -> list[Row]:
-    """The env at B = 65,536 on the GPU (compiled vs eager) and the updates there."""
-    rows = env_rows((65536,), steps=4, repeat=2, device=device)
-    for row in rows:
-        row.what = row.what.replace("env steps", "GPU env steps")
-        row.ours *= 5  # env-steps/s -> UAV-steps/s (N = 5)
-        row.baseline *= 5
-        row.unit = "UAV-steps/s"
-    return rows + learner_rows(device=device)
-
-
 def run_all(quick: bool = False, device: str = "cpu", notes: list[str] | None = None) -> list[Row]:
     """Every row; the paper loop's time splits are appended to ``notes``."""
     repeat = 2 if quick else 3
@@ -312,8 +303,6 @@ def run_all(quick: bool = False, device: str = "cpu", notes: list[str] | None = 
     rows += loop
     if notes is not None:
         notes += splits
-    if torch.cuda.is_available() and device == "cpu":
-        rows += gpu_rows()
     return rows
 
 
@@ -337,7 +326,16 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device), notes=notes))
     text += "\n" + "\n".join(notes)
     # Populations against solo runs, the whole training loop (benchmarks/population.py).
-    text += "\n" + "\n".join(population_lines(frames=400 if cfg.quick else 3000, print_each=False))
+    rates: dict = {}
+    text += "\n" + "\n".join(population_lines(frames=400 if cfg.quick else 3000, print_each=False, rates=rates))
+    members = max(k for _, k, _ in rates)
+    text += "\n" + projection_line("CPU, 1 thread" if cfg.threads == 1 else "CPU", rates["paper", members, "false"],
+                                   rates["fast", members, "false"], members)
+    # The GPU's rows and projection, where CUDA exists (benchmarks/gpu.py).
+    if torch.cuda.is_available():
+        text += "\n" + "\n".join(gpu_lines(frames=400 if cfg.quick else 3000))
+    else:
+        text += "\nGPU rows: no CUDA device here (benchmarks/gpu.py runs them where torch.cuda.is_available())"
     # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
     text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
     # The 3-D step against the 2-D one, per UAV-step (benchmarks/threed.py).

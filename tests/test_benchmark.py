@@ -100,3 +100,17 @@ def test_the_reset_rows_reset_only_the_masked_worlds_and_count_endings():
     assert not torch.equal(after[0], before[0]) and torch.equal(after[1:], before[1:])
     lines = reset_lines(batch=4, rounds=1, print_each=False)
     assert len(lines) == 5 and "reset 2 worlds" in lines[1] and "reset 4 worlds" in lines[2] and "worlds ending per step" in lines[-1]
+
+
+def test_the_projection_line_divides_the_studys_updates_by_the_measured_rates():
+    from benchmarks.gpu import fast_updates, projection_line
+
+    # experiment=fast: 32 worlds x 8 steps = 256 frames a batch; 120,000 frames end after batch
+    # ceil(120000 / 256) = 469; updates start once 2048 random frames are in (batch 8): 462
+    # batches x 7 updates = 3234.
+    assert fast_updates() == 3234
+    # 8 x 10 x 816,000 member-updates at 8 x 10 x 816,000 / 3600 per second: one hour; likewise
+    # 10 x 10 x 3234 at 10 x 10 x 3234 / 3600 per second.
+    line = projection_line("here", 8 * 10 * 816_000 / 3600, 10 * 10 * 3234 / 3600, 10)
+    assert line.startswith("projection (here): the paper's study (8 policies x 10 seeds x 816,000 updates")
+    assert ": 1.0 h;" in line and "(3,234 updates each)" in line and line.endswith(": 1.00 h")

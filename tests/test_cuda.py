@@ -24,3 +24,47 @@ def test_training_and_evaluation_on_cuda(tmp_path):
     evaluation = evaluate(result.checkpoint, "s2", n_episodes=8, device="cuda")
     assert evaluation.n_episodes == 8
     assert evaluate(goal_seeking_policy(), "s1", n_episodes=4, device="cuda").rate("success").rate == 1.0
+
+
+def test_a_captured_update_on_cuda_equals_the_uncaptured_one():
+    from flock_torchrl.policies.learners import make_learner
+    from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+    from flock_torchrl.config import TrainConfig
+
+    cfg = TrainConfig.from_config(make_train_config("policy3_g", "tiny", ["device=cuda"]))
+    env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=3, device="cuda")
+    td = agentwise_done(env.rollout(120, break_when_any_done=False), env.n_agents)
+    td = td.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+    learners = []
+    for cudagraphs in (True, False):
+        torch.manual_seed(0)
+        learners.append(make_learner(env, cfg.algo, cfg.policy.critic_input, cudagraphs=cudagraphs))
+    for step in range(8):  # past the warm-up: the last calls replay the recorded graph
+        batch = td[(step % 4) * 26:(step % 4 + 1) * 26]
+        outs = []
+        for learner in learners:  # the same draws on both sides (a replay reads the generator's seed)
+            torch.manual_seed(100 + step)
+            outs.append(learner.update(batch.clone()))
+        got, want = outs
+        for key in want:
+            torch.testing.assert_close(got[key], want[key], rtol=1e-4, atol=1e-5)
+    learners[0].check()
+
+
+def test_a_captured_run_on_cuda_resumes_bitwise(tmp_path):
+    base = ["device=cuda", "cudagraphs=true", "scenario.max_steps=40", "progress=false", "logger=none"]
+    train(make_train_config("policy3_g", "tiny", base), tmp_path / "whole")
+    train(make_train_config("policy3_g", "tiny", [*base, "experiment.max_frames=64"]), tmp_path / "resumed")
+    train(make_train_config("policy3_g", "tiny", [*base, "resume=true"]), tmp_path / "resumed")
+    from flock_torchrl.policies.checkpoint import load_checkpoint
+
+    a, b = load_checkpoint(tmp_path / "whole" / "last.pt"), load_checkpoint(tmp_path / "resumed" / "last.pt")
+    assert "cuda" in b["rng"]
+    assert all(torch.equal(v, b["actor"][k]) for k, v in a["actor"].items())
+
+
+def test_the_gpu_benchmark_rows_run():
+    from benchmarks.gpu import update_lines
+
+    lines = update_lines("cuda", members=(1, 2), calls=5)
+    assert len(lines) == 2 and all("captured" in line for line in lines)

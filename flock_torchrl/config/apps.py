@@ -105,6 +105,7 @@ class TrainConfig(RunOptions, WorldApp):
     objective: str = MISSING                 # what the app returns to a sweeper: a final-evaluation metric
     resumable: List[str] = field(default_factory=list)   # keys a resume may change (a trailing . = a group)
     population: int = 1                      # members trained together, seeds seed .. seed + population - 1
+    cudagraphs: bool = False                 # the update as one captured CUDA graph (sac, ddpg; CPU: eager)
 
     def checked_fields(self, p: str) -> dict[str, Any]:
         fields = dict(super().checked_fields(p))  # the run options, then the world
@@ -125,6 +126,9 @@ class TrainConfig(RunOptions, WorldApp):
         choice("compile", str(self.compile).lower(), COMPILE_MODES)
         choice("objective", self.objective, OBJECTIVES)
         self._check_population(algo, experiment)
+        if self.cudagraphs and algo.name not in ("sac", "ddpg"):
+            reject("cudagraphs", f"the captured update is SAC's and DDPG's; {policy.id} trains with {algo.name}: "
+                                 "use cudagraphs=false")
         return fields
 
     def _check_population(self, algo: LearnerConfig, experiment: ExperimentConfig) -> None:

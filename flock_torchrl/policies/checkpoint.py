@@ -283,9 +283,10 @@ class SharedPolicy(TensorDictModuleBase):
     in, and the scenario fields it sets (``policy_scenario``).
     """
 
-    def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device = "cpu",
+    def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device | None = None,
                  origin: str = "the checkpoint") -> None:
         super().__init__()
+        device = torch.device("cpu" if device is None else device)
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
         self.flock_meta = meta
@@ -311,15 +312,35 @@ class SharedPolicy(TensorDictModuleBase):
                                       f"(obs {observation_size(scenario)}, hidden {meta['hidden']}, depth "
                                       f"{meta['depth']}) needs {shape(want)}")
         self.actor.load_state_dict(actor_state)
+        self._sizes = (observation_size(scenario), limit)
+        self._device = device  # where the actor and its action box are
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = tensordict.get(OBS, None)
+        if observation is not None and observation.device != self._device:
+            self.follow(observation.device)
         return self.actor(tensordict)
 
+    def follow(self, device: str | torch.device) -> "SharedPolicy":
+        """Move the actor, and the action box its distribution reads, to ``device`` (what a
+        call with observations on another device does by itself: the policy follows its env)."""
+        device = torch.device(device)
+        n_obs, limit = self._sizes
+        box = torch.full((self.dims,), limit, device=device)
+        state = {k: v.to(device) for k, v in self.actor.state_dict().items()}
+        meta = self.flock_meta
+        self.actor = actor_of_sizes(n_obs, -box, box, device=device, stochastic=meta["stochastic"],
+                                    hidden=meta["hidden"], depth=meta["depth"])
+        self.actor.load_state_dict(state)
+        self._device = device
+        return self
 
-def load_policy(path: str | os.PathLike, device: str | torch.device = "cpu", member: int | None = None
+
+def load_policy(path: str | os.PathLike, device: str | torch.device | None = None, member: int | None = None
                 ) -> SharedPolicy:
     """A trained policy from a checkpoint (slim or training, or a run folder), ready for
-    ``env.rollout``. Build its env in its own world::
+    ``env.rollout``: on ``device`` (default: the CPU) until it is called with observations on
+    another device, then on theirs (it follows its env). Build its env in its own world::
 
         policy = load_policy("checkpoints/paper_fit/policy3_g/seed0.pt")
         env = FlockingEnv("s2", num_envs=8, reading=policy.flock_meta["reading"],

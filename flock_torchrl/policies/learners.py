@@ -15,6 +15,14 @@ Speed: one Adam per learner with a parameter group per network (each its own lea
 as Table I), fused where the device supports it (one kernel for every parameter); with
 ``compile=True`` the loss module's forward (and, through AOTAutograd, its backward) is
 ``torch.compile`` d. ``compile=False`` is the eager twin: the same loss, module and optimiser.
+
+Captured (``cudagraphs=True``, SAC and DDPG): the whole gradient step (loss, backward, clipping,
+Adam, target update) is one function that never reads a tensor on the host, wrapped in
+tensordict's ``CudaGraphModule``: on a GPU it is recorded once as a CUDA graph and replayed, its
+Adam ``capturable`` (its step counts on the device). Whether a loss was finite is then kept on
+the device and read by :meth:`check` (at logging time and before every checkpoint) instead of
+after every update. On a CPU ``CudaGraphModule`` calls the function as it is: the same code path,
+eager, which the tests compare against the uncaptured learner.
 """
 
 from __future__ import annotations
@@ -38,10 +46,51 @@ warnings.filterwarnings("ignore", message="You requested advantage normalization
 AGENT_KEYS = dict(reward=("agents", "reward"), done=("agents", "done"), terminated=("agents", "terminated"))
 
 
-def adam(groups: list[dict[str, Any]], device: torch.device) -> torch.optim.Adam:
-    """One Adam over parameter groups (each with its ``lr``), fused on CPU and CUDA."""
+def adam(groups: list[dict[str, Any]], device: torch.device, capturable: bool = False) -> torch.optim.Adam:
+    """One Adam over parameter groups (each with its ``lr``), fused on CPU and CUDA;
+    ``capturable`` on CUDA (its step counts on the device, so a CUDA graph can hold its step)."""
     fused = device.type in ("cpu", "cuda")
-    return torch.optim.Adam(groups, fused=fused or None, foreach=None if fused else True)
+    extra = {"capturable": True} if capturable and device.type == "cuda" else {}
+    return torch.optim.Adam(groups, fused=fused or None, foreach=None if fused else True, **extra)
+
+
+# Calls of a captured update run as they are before the CUDA graph is recorded (the optimiser's
+# state and the compiled loss exist by then): tensordict's CudaGraphModule ``warmup``.
+CUDAGRAPH_WARMUP = 3
+
+
+def captured(step, device: torch.device, enabled: bool):
+    """``step`` itself, or tensordict's ``CudaGraphModule`` around it (recorded on the device's
+    first calls after :data:`CUDAGRAPH_WARMUP`, replayed after; a pass-through without CUDA)."""
+    if not enabled:
+        return step
+    from tensordict.nn import CudaGraphModule
+
+    with warnings.catch_warnings():  # on a CPU: "calls to this instance will just pass through"
+        warnings.filterwarnings("ignore", message="This module is instantiated on a machine without CUDA")
+        return CudaGraphModule(step, warmup=CUDAGRAPH_WARMUP, device=device if device.type == "cuda" else None)
+
+
+class FiniteLosses:
+    """Whether every loss of every update so far was finite, kept on the device (a captured
+    update never reads it on the host): ``record`` inside the update, ``check`` outside it."""
+
+    def __init__(self, names: tuple[str, ...], device: torch.device, members: int | None = None) -> None:
+        self.names = names
+        shape = (len(names),) if members is None else (len(names), members)
+        self.flags = torch.ones(shape, dtype=torch.bool, device=device)
+
+    def record(self, terms: dict[str, torch.Tensor]) -> None:
+        self.flags.logical_and_(torch.stack([torch.isfinite(terms[k].detach()).reshape(self.flags.shape[1:])
+                                             for k in self.names]))
+
+    def check(self) -> None:
+        """``FloatingPointError`` naming the first loss (and member) that was not finite."""
+        if bool(self.flags.all()):
+            return
+        bad = (~self.flags).nonzero()[0].tolist()
+        member = f" of member {bad[1]}" if len(bad) > 1 else ""
+        raise FloatingPointError(f"{self.names[bad[0]]}{member} was not finite: training diverged")
 
 
 # Inductor's CPU kernels for the losses are built scalar (``cpp.simdlen = 1``): at these sizes
@@ -86,7 +135,11 @@ def check_finite(losses: dict[str, torch.Tensor]) -> None:
 
 class _OffPolicy:
     """What SAC and DDPG share: one gradient step over the summed losses (they touch disjoint
-    parameter sets), gradient clipping per network, then the soft target update."""
+    parameter sets), gradient clipping per network, then the soft target update.
+
+    Uncaptured, a non-finite loss stops the update before the optimiser steps; captured, the
+    step runs whole and :meth:`check` reports it later (the run then stops before its next
+    checkpoint, so the last good checkpoint is kept either way)."""
 
     off_policy = True
     cfg: Any
@@ -94,12 +147,44 @@ class _OffPolicy:
     q_params: list
     optimizer: torch.optim.Optimizer
     target_updater: SoftUpdate
+    cudagraphs: bool = False
 
     def on_frames(self, frames: int) -> None:
         """Called with the frames of every collected batch; SAC has nothing to anneal (DDPG does)."""
 
-    def _gradient_step(self, terms: dict[str, torch.Tensor]) -> None:
+    def _terms(self, losses: TensorDictBase) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def _stats(self, losses: TensorDictBase, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def _setup_update(self, device: torch.device, cudagraphs: bool) -> None:
+        self.cudagraphs = bool(cudagraphs)
+        self.finite = FiniteLosses(tuple(self._term_names), device)
+        self._update = captured(self._captured_step, device, self.cudagraphs)
+
+    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        if self.cudagraphs:
+            return self._update(batch)
+        losses = self.loss_fn(batch)
+        terms = self._terms(losses)
         check_finite(terms)
+        self._gradient_step(terms)
+        return self._stats(losses, terms)
+
+    def check(self) -> None:
+        """Raise ``FloatingPointError`` if a captured update met a non-finite loss."""
+        self.finite.check()
+
+    def _captured_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One whole update without a host synchronisation (what ``CudaGraphModule`` records)."""
+        losses = self.loss_fn(batch)
+        terms = self._terms(losses)
+        self.finite.record(terms)
+        self._gradient_step(terms)
+        return self._stats(losses, terms)
+
+    def _gradient_step(self, terms: dict[str, torch.Tensor]) -> None:
         self.optimizer.zero_grad(set_to_none=True)
         sum(terms.values()).backward()
         _clip(self.actor_params, self.cfg.max_grad_norm)
@@ -111,7 +196,10 @@ class _OffPolicy:
 class SACLearner(_OffPolicy):
     """SAC (paper Sec. III-C, Algorithm 1): twin Q, automatic temperature, soft targets."""
 
-    def __init__(self, env, cfg: SACConfig, critic_input: str, compile: bool = False) -> None:
+    _term_names = ("loss_actor", "loss_qvalue", "loss_alpha")
+
+    def __init__(self, env, cfg: SACConfig, critic_input: str, compile: bool = False,
+                 cudagraphs: bool = False) -> None:
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth)
         self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
@@ -129,16 +217,18 @@ class SACLearner(_OffPolicy):
         self.q_params = list(self.loss.qvalue_network_params.values(True, True))
         self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
                                {"params": self.q_params, "lr": cfg.lr_critic},
-                               {"params": [self.loss.log_alpha], "lr": cfg.lr_alpha}], env.device)
+                               {"params": [self.loss.log_alpha], "lr": cfg.lr_alpha}], env.device,
+                              capturable=cudagraphs)
         # SACLoss turns its target entropy into a buffer on first use; do it here, outside any
         # compiled region (traced, the conversion is lost and state_dict() fails later).
         self.loss.target_entropy  # noqa: B018
         self.loss_fn = compiled(self.loss, compile)
+        self._setup_update(env.device, cudagraphs)
 
-    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        losses = self.loss_fn(batch)
-        terms = {k: losses[k] for k in ("loss_actor", "loss_qvalue", "loss_alpha")}
-        self._gradient_step(terms)
+    def _terms(self, losses: TensorDictBase) -> dict[str, torch.Tensor]:
+        return {k: losses[k] for k in self._term_names}
+
+    def _stats(self, losses: TensorDictBase, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return {**{k: v.detach() for k, v in terms.items()}, "alpha": losses["alpha"].detach(),
                 "entropy": losses["entropy"].detach()}
 
@@ -153,7 +243,10 @@ class SACLearner(_OffPolicy):
 class DDPGLearner(_OffPolicy):
     """DDPG (PolicyD-G): deterministic tanh actor, Q critic, target networks, Gaussian exploration."""
 
-    def __init__(self, env, cfg: DDPGConfig, critic_input: str, compile: bool = False) -> None:
+    _term_names = ("loss_actor", "loss_qvalue")
+
+    def __init__(self, env, cfg: DDPGConfig, critic_input: str, compile: bool = False,
+                 cudagraphs: bool = False) -> None:
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=False, hidden=cfg.hidden, depth=cfg.depth)
         self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
@@ -170,17 +263,18 @@ class DDPGLearner(_OffPolicy):
         self.actor_params = list(self.loss.actor_network_params.values(True, True))
         self.q_params = list(self.loss.value_network_params.values(True, True))
         self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
-                               {"params": self.q_params, "lr": cfg.lr_critic}], env.device)
+                               {"params": self.q_params, "lr": cfg.lr_critic}], env.device, capturable=cudagraphs)
         self.loss_fn = compiled(self.loss, compile)
+        self._setup_update(env.device, cudagraphs)
 
     def on_frames(self, frames: int) -> None:
         """Anneal the exploration noise by the frames just collected."""
         self.exploration.step(frames)
 
-    def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        losses = self.loss_fn(batch)
-        terms = {"loss_actor": losses["loss_actor"], "loss_qvalue": losses["loss_value"]}
-        self._gradient_step(terms)
+    def _terms(self, losses: TensorDictBase) -> dict[str, torch.Tensor]:
+        return {"loss_actor": losses["loss_actor"], "loss_qvalue": losses["loss_value"]}
+
+    def _stats(self, losses: TensorDictBase, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return {**{k: v.detach() for k, v in terms.items()}, "sigma": self.exploration.sigma.detach().clone()}
 
     def state_dict(self) -> dict[str, Any]:
@@ -201,7 +295,10 @@ class PPOLearner:
     def on_frames(self, frames: int) -> None:
         """Called with the frames of every collected batch: nothing to anneal."""
 
-    def __init__(self, env, cfg: PPOConfig, critic_input: str, compile: bool = False) -> None:
+    def __init__(self, env, cfg: PPOConfig, critic_input: str, compile: bool = False,
+                 cudagraphs: bool = False) -> None:
+        if cudagraphs:
+            raise ValueError("cudagraphs: the captured update is SAC's and DDPG's; PPO's epochs run as they are")
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth, return_log_prob=True)
         self.value = make_value(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
@@ -229,7 +326,7 @@ class PPOLearner:
         size = min(self.cfg.minibatch_size, n)
         stats: dict[str, torch.Tensor] = {}
         for _ in range(self.cfg.epochs):
-            order = torch.randperm(n)
+            order = torch.randperm(n, device=flat.device)
             for start in range(0, n - size + 1, size):  # minibatches of one batch: PPO's epochs
                 losses = self.loss_fn(flat[order[start:start + size]])
                 terms = {"loss_objective": losses["loss_objective"], "loss_critic": losses["loss_critic"]}
@@ -244,6 +341,9 @@ class PPOLearner:
                          else torch.tensor(math.nan)}
         return stats
 
+    def check(self) -> None:
+        """Every PPO update checks its losses itself."""
+
     def state_dict(self) -> dict[str, Any]:
         return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
 
@@ -255,5 +355,5 @@ class PPOLearner:
 LEARNERS = {"sac": SACLearner, "ddpg": DDPGLearner, "ppo": PPOLearner}
 
 
-def make_learner(env, algo_cfg, critic_input: str, compile: bool = False):
-    return LEARNERS[algo_cfg.name](env, algo_cfg, critic_input, compile=compile)
+def make_learner(env, algo_cfg, critic_input: str, compile: bool = False, cudagraphs: bool = False):
+    return LEARNERS[algo_cfg.name](env, algo_cfg, critic_input, compile=compile, cudagraphs=cudagraphs)

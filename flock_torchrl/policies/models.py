@@ -18,6 +18,8 @@ from torch import distributions as D
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
+_TorchRLTanhNormal = TanhNormal
+
 OBS = ("agents", "observation")
 ACTION = ("agents", "action")
 LOG_PROB = ("agents", "action_log_prob")
@@ -43,8 +45,13 @@ class TanhNormal(TanhNormal):
     def update(self, loc: torch.Tensor, scale: torch.Tensor) -> None:
         super().update(loc, scale)
         root = self.root_dist
-        if type(root) is D.Normal:
-            root.__class__ = _Normal
+        if type(root) is D.Normal:  # just built by TorchRL: the same Normal, built as a _Normal
+            # (a new object rather than a __class__ assignment, which torch.compile cannot trace:
+            # it broke the compiled losses into pieces, each run eagerly)
+            base = _Normal(root.loc, root.scale)
+            if self._event_dims > 0:
+                base = D.Independent(base, self._event_dims)
+            super(_TorchRLTanhNormal, self).__init__(base, self._t)
 
 
 def shared_mlp(n_in: int, n_out: int, hidden: int, depth: int, device=None) -> MLP:

@@ -26,7 +26,7 @@ from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torchrl.data.replay_buffers.samplers import Sampler
 
-from .learners import adam, make_learner
+from .learners import FiniteLosses, adam, captured, make_learner
 
 # The trainable parameters and the soft-updated targets of each learner, as SoftUpdate pairs
 # them (``target_<name>_params`` follows ``<name>_params``).
@@ -121,7 +121,8 @@ class PopulationLearner:
 
     off_policy = True
 
-    def __init__(self, env, algo_cfg, critic_input: str, seeds: Sequence[int], compile: bool = False) -> None:
+    def __init__(self, env, algo_cfg, critic_input: str, seeds: Sequence[int], compile: bool = False,
+                 cudagraphs: bool = False) -> None:
         name = algo_cfg.name
         if name not in _TRAINED:
             raise PopulationError(f"a population trains sac or ddpg, not {name}")
@@ -153,7 +154,8 @@ class PopulationLearner:
         self.params = stacked
         lrs = {"actor_network_params": algo_cfg.lr_actor, "qvalue_network_params": algo_cfg.lr_critic,
                "value_network_params": algo_cfg.lr_critic, "log_alpha": getattr(algo_cfg, "lr_alpha", None)}
-        self.optimizer = adam([{"params": leaves[k], "lr": lrs[k]} for k in trained], env.device)
+        self.optimizer = adam([{"params": leaves[k], "lr": lrs[k]} for k in trained], env.device,
+                              capturable=cudagraphs)
         self._clip_groups = [leaves[k] for k in trained if k != "log_alpha"]
         # SoftUpdate's own arithmetic: target.lerp_(source, 1 - eps), eps = 1 - tau.
         self._target_weight = 1 - (1 - algo_cfg.tau)
@@ -172,6 +174,10 @@ class PopulationLearner:
             self._losses = torch.vmap(member_losses, (0, 1), randomness="different")
         else:  # one member: the same loss called directly (vmap's batched kernels would round differently)
             self._losses = _unbatched(member_losses, 1)
+        # Captured (learners.captured): the whole step is one function without a host read.
+        self.cudagraphs = bool(cudagraphs)
+        self.finite = FiniteLosses(tuple(_TERMS[name]), env.device, self.members)
+        self._update = captured(self._captured_step, env.device, self.cudagraphs)
 
     # ------------------------------------------------------------------ training
     def on_frames(self, frames: int) -> None:
@@ -181,6 +187,8 @@ class PopulationLearner:
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One gradient step of every member on its column of ``batch [batch, K]``."""
+        if self.cudagraphs:
+            return self._update(batch)
         out = self._losses(self.params, batch)
         terms = {k: out[k] for k in _TERMS[self.name]}
         values = torch.stack([v.detach() for v in terms.values()])
@@ -188,6 +196,20 @@ class PopulationLearner:
             name, member = next((k, int((~torch.isfinite(v)).nonzero()[0, 0])) for k, v in terms.items()
                                 if not torch.isfinite(v).all())
             raise FloatingPointError(f"{name} of member {member} is {terms[name][member].item()}: training diverged")
+        return self._step(out, terms)
+
+    def check(self) -> None:
+        """Raise ``FloatingPointError`` if a captured update met a non-finite loss."""
+        self.finite.check()
+
+    def _captured_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One whole update without a host synchronisation (what ``CudaGraphModule`` records)."""
+        out = self._losses(self.params, batch)
+        terms = {k: out[k] for k in _TERMS[self.name]}
+        self.finite.record(terms)
+        return self._step(out, terms)
+
+    def _step(self, out: dict[str, torch.Tensor], terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         self.optimizer.zero_grad(set_to_none=True)
         sum(terms.values()).sum().backward()
         if self.cfg.max_grad_norm > 0:

@@ -145,6 +145,17 @@ def rule_handle(policy: PolicyConfig, scenario: Mapping[str, Any]) -> PolicyHand
         origin=f"baseline:{policy.id}", build_for=lambda env: make_baseline(policy, env.cfg))
 
 
+def module_device(module: Any, default: str = "cpu") -> str:
+    """Where a module's parameters (else buffers) live; ``default`` for anything without either."""
+    for tensors in ("parameters", "buffers"):
+        found = getattr(module, tensors, None)
+        if callable(found):
+            first = next(iter(found()), None)
+            if first is not None:
+                return str(first.device)
+    return default
+
+
 def module_handle(module: Any) -> PolicyHandle:
     meta = dict(getattr(module, "flock_meta", None) or {})
     name = str(meta.get("policy") or getattr(module, "name", None) or type(module).__name__)
@@ -339,10 +350,10 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
     return handles
 
 
-def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
+def make_policy(policy: Any, env: Any, device: str | None = None) -> Module:
     """A TensorDict module for ``env``: a checkpoint's or module's policy, a rule-based
     controller, or, for a learned policy's id, a freshly initialised shared actor sized from
-    the env's specs (to script your own training).
+    the env's specs (to script your own training). On ``device``, by default the env's.
 
     The env should be built in the policy's world: ``FlockingEnv(..., policy_id=<id>)``, and
     for the rule-based ones with ``extras=("physics", "laser")``.
@@ -354,9 +365,10 @@ def make_policy(policy: Any, env: Any, device: str = "cpu") -> Module:
 
             algo = compose_world("train", env.cfg.reading, config.id).algo
             return make_actor(env, stochastic=algo.name != "ddpg", hidden=algo.hidden, depth=algo.depth)
-    (handle,) = resolve(policy, env.cfg.reading, device=device)[:1]
+    (handle,) = resolve(policy, env.cfg.reading, device=str(env.device if device is None else device))[:1]
     return handle.build(env)
 
 
-__all__ = ["PolicyHandle", "checkpoint_handle", "checkpoint_handles", "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
+__all__ = ["PolicyHandle", "checkpoint_handle", "checkpoint_handles", "module_device",
+           "contender_handle", "contender_world", "describe", "world_label", "make_policy", "module_handle", "policy_config_of",
            "policy_id", "resolve", "rule_handle", "shipped_checkpoints"]

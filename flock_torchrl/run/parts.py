@@ -21,6 +21,7 @@ from torchrl.envs.utils import ExplorationType
 from ..config import TrainConfig
 from ..io import write_failure
 from ..policies.checkpoint import CheckpointError, save_checkpoint
+from ..policies.learners import CUDAGRAPH_WARMUP
 from ..world.env import FlockingEnv
 from .batches import AgentwiseDone
 from .signals import ignore_stop_signals, start_workers
@@ -37,6 +38,7 @@ class Learner(Protocol):
 
     def on_frames(self, frames: int) -> None: ...       # frames just collected (noise annealing)
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]: ...
+    def check(self) -> None: ...                         # FloatingPointError if a captured update diverged
     def state_dict(self) -> dict[str, Any]: ...
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
 
@@ -58,13 +60,30 @@ class TrainResult:
         return split_line(self.split)
 
 
+def rng_state(device: torch.device) -> dict[str, torch.Tensor]:
+    """Torch's global generators a run draws from: the CPU's, and the CUDA device's when the
+    run is on one (its policy and losses sample there), so that a resume continues bit for bit."""
+    state = {"torch": torch.get_rng_state()}
+    if device.type == "cuda":
+        state["cuda"] = torch.cuda.get_rng_state(device)
+    return state
+
+
+def restore_rng(saved: dict[str, torch.Tensor], device: torch.device) -> None:
+    """Put back :func:`rng_state` (a checkpoint of a CPU run resumed on a GPU keeps the
+    device's own seeding)."""
+    torch.set_rng_state(saved["torch"])
+    if device.type == "cuda" and "cuda" in saved:
+        torch.cuda.set_rng_state(saved["cuda"], device)
+
+
 def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, parent: int,
              scenario: Any = None) -> FlockingEnv:
     """A training env (in a collector process, one that leaves stop signals to the main process)."""
     if os.getpid() != parent:
         ignore_stop_signals()
     return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
-                       compile_step=cfg.compile_step)
+                       compile_step=cfg.compile_step, check_actions=False)
 
 
 def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:
@@ -87,7 +106,7 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
     exp = cfg.experiment
     kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 else exp.num_envs) * steps, total_frames=-1,
                   device=device, init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
-                  auto_register_policy_transforms=False)
+                  auto_register_policy_transforms=False, cudagraph_policy=policy_capture(cfg))
     def single(env: FlockingEnv) -> Collector:
         return Collector(env, policy, track_traj_ids=False, postproc=AgentwiseDone(env.n_agents), **kwargs)
 
@@ -95,6 +114,12 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
         [functools.partial(factory, cfg.seed * 1000 + w) for w in range(exp.workers)], policy,
         postproc=AgentwiseDone(envs[0].n_agents), **kwargs)) if exp.workers > 1 else single(envs[0])
     return [first, *(single(env) for env in envs[1:])]
+
+
+def policy_capture(cfg: TrainConfig) -> dict[str, int] | None:
+    """A collector's ``cudagraph_policy``: with ``cudagraphs``, the policy's forward captured as
+    the update is (tensordict's ``CudaGraphModule``; a pass-through without CUDA)."""
+    return {"warmup": CUDAGRAPH_WARMUP} if cfg.cudagraphs else None
 
 
 def replay_buffer(cfg: TrainConfig, n_uavs: int, device: torch.device, **kwargs: Any) -> TensorDictReplayBuffer:
@@ -205,5 +230,5 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "buffer_state", "evaluation_row", "make_collectors", "make_env", "make_envs",
-           "replay_buffer", "restore_buffer", "write_checkpoint"]
+__all__ = ["Learner", "TrainResult", "buffer_state", "evaluation_row", "policy_capture", "restore_rng", "rng_state",
+           "make_collectors", "make_env", "make_envs", "replay_buffer", "restore_buffer", "write_checkpoint"]

@@ -42,7 +42,7 @@ from .run_folder import EpisodeLog
 from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, AgentwiseDone, episode_rows, per_uav
 from .setup import checkpoint_meta
 from .signals import start_resource_tracker
-from .parts import evaluation_row, replay_buffer, restore_buffer
+from .parts import evaluation_row, policy_capture, replay_buffer, restore_buffer, restore_rng
 from .timing import TimeSplit, rates
 from .trainer import Training
 
@@ -62,7 +62,7 @@ class PopulationTraining(Training):
         self.member_episodes = [0] * self.k
         self.member_evaluations: list[list[dict[str, float]]] = [[] for _ in self.seeds]
         self.final: list[dict[str, Any] | None] = [None] * self.k   # a member's frozen result, once final
-        self.split = TimeSplit("members")  # and per-member bookkeeping (episode rows)
+        self.split = TimeSplit("members", device=cfg.device)  # and per-member bookkeeping (episode rows)
 
     # ---------------------------------------------------------------- the pieces
     def _build(self, payload: dict | None) -> None:
@@ -75,10 +75,11 @@ class PopulationTraining(Training):
         self.mixed = bool(exp.swarm_sizes)
         scenarios = cfg.train_scenarios if self.mixed else [cfg.train_scenario]
         self.envs = [PopulationEnv(scenario, self.k, exp.num_envs // len(scenarios), [s * 1000 + i for s in self.seeds],
-                                   device=device, compile_step=cfg.compile_step)
+                                   device=device, compile_step=cfg.compile_step, check_actions=False)
                      for i, scenario in enumerate(scenarios)]
         self.env = env = self.envs[0]
-        self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds)
+        self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds,
+                                                   cudagraphs=cfg.cudagraphs)
         self.buffer = replay_buffer(cfg, 1 if self.mixed else cfg.scenario.n_uavs, device,
                                     sampler=MemberSampler(self.k))
         if payload is not None:
@@ -92,11 +93,11 @@ class PopulationTraining(Training):
                                      frames_per_batch=one.num_envs * exp.steps_per_batch, total_frames=-1,
                                      device=device, init_random_frames=init_random * self.k or None,
                                      exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
-                                     postproc=AgentwiseDone(one.n_agents))
+                                     postproc=AgentwiseDone(one.n_agents), cudagraph_policy=policy_capture(cfg))
                            for one in self.envs]
         self.collector = self.collectors[0]
         if payload is not None:
-            torch.set_rng_state(payload["rng"]["torch"])
+            restore_rng(payload["rng"], device)
         self.meta = {**checkpoint_meta(cfg, env), "population": self.k, "seeds": list(self.seeds)}
         self._eval_actor = copy.deepcopy(learner.actor)
 
@@ -174,6 +175,7 @@ class PopulationTraining(Training):
 
     # ---------------------------------------------------------------- logging, evaluation
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
+        self.learner.check()
         log: dict[str, float] = {}
         for k, seed in enumerate(self.seeds):
             log.update({f"seed{seed}/train/{name}": float(v[k]) for name, v in stats.items()})

@@ -29,7 +29,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..config import ConfigError, ScenarioConfig, eval_seed, scenario_config
-from ..policies.registry import PolicyHandle, describe, resolve
+from ..policies.registry import PolicyHandle, describe, module_device, resolve
 from ..world.env import FlockingEnv
 from ..world.metrics import METRIC_KEYS
 from .results import EvaluationResult
@@ -178,7 +178,7 @@ def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
 
 
 def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "train", reading: str | None = None,
-             n_episodes: int = 500, seed: int | None = None, device: str | torch.device = "cpu",
+             n_episodes: int = 500, seed: int | None = None, device: str | torch.device | None = None,
              env_overrides: Mapping[str, Any] | None = None, max_steps: int | None = None, *,
              checkpoints_dir: str | os.PathLike | None = None) -> EvaluationResult:
     """Evaluate a policy on ``n_episodes`` seeded episodes of a scenario (section 5 protocol).
@@ -194,12 +194,15 @@ def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "
         env_overrides: scenario fields on top of the policy's (e.g. ``{"tau_v": 0.5}``).
         max_steps: episode limit T_max override.
         checkpoints_dir: root of the shipped checkpoints (for a learned policy's name).
+        device: where the worlds run; by default a module's own device, else the CPU.
     """
     if not isinstance(n_episodes, int) or isinstance(n_episodes, bool) or n_episodes < 1:
         raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
     overrides = dict(env_overrides or {})
     if max_steps is not None:
         overrides["max_steps"] = int(max_steps)
+    if device is None:
+        device = module_device(policy) if isinstance(policy, torch.nn.Module) else "cpu"
     results = [evaluate_handle(handle, scenario, reading, n_episodes, seed, device, overrides)
                for handle in resolve(policy, reading, checkpoints_dir, device=str(device))]
     return EvaluationResult.pooled(results)

@@ -28,7 +28,7 @@ from ..policies.checkpoint import LAST
 from ..policies.learners import make_learner
 from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, agentwise_done, episode_rows, per_uav
 from .parts import (Learner, TrainResult, buffer_state, evaluation_row, make_collectors, make_env, make_envs,
-                    replay_buffer, restore_buffer, write_checkpoint)
+                    replay_buffer, restore_buffer, restore_rng, rng_state, write_checkpoint)
 from .run_folder import EpisodeLog, logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
 from .schedule import Schedule, evaluated_at_end
 from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra_settings, make_train_config,
@@ -47,7 +47,7 @@ class Training:
         self.ckpt_path = run_dir / LAST
         self.counters = {"frames": 0, "episodes": 0, "updates": 0, "iterations": 0, "seconds": 0.0}
         self.evaluations: list[dict[str, float]] = []
-        self.split = TimeSplit()
+        self.split = TimeSplit(device=cfg.device)
         self.saved_frames = -1            # frames of the last checkpoint this process wrote
         self.start = time.perf_counter()
         self.progress: Progress | None = None
@@ -60,7 +60,8 @@ class Training:
         self.mixed = bool(exp.swarm_sizes)
         self.envs, factory = make_envs(cfg, device)
         self.env = self.envs[0]
-        self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss)
+        self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss,
+                                             cudagraphs=cfg.cudagraphs)
         off_policy = self.learner.off_policy
         self.buffer = replay_buffer(cfg, 1 if self.mixed else cfg.scenario.n_uavs, device) if off_policy else None
         if payload is not None:
@@ -75,7 +76,7 @@ class Training:
         self.collectors = make_collectors(cfg, self.envs, factory, self.learner.collector_policy, steps, init_random,
                                           device)
         if payload is not None:
-            torch.set_rng_state(payload["rng"]["torch"])
+            restore_rng(payload["rng"], device)
         self.meta = checkpoint_meta(cfg, self.env)
 
     def run(self) -> TrainResult:
@@ -210,6 +211,7 @@ class Training:
         """What a subclass restores from a checkpoint beyond the counters and evaluations."""
 
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
+        self.learner.check()  # a captured update's finite-loss flags, read where the host reads anyway
         log = {f"train/{k}": float(v) for k, v in stats.items()}
         if self.recent:
             log["train/episode_reward"] = sum(r for r, _ in self.recent) / len(self.recent)
@@ -276,7 +278,7 @@ class Training:
         state = {
             "meta": self.meta, "config": self.resolved, "counters": dict(self.counters),
             "actor": self.learner.actor.state_dict(), "learner": self.learner.state_dict(),
-            "rng": {"torch": torch.get_rng_state()}, "evaluations": self.evaluations,
+            "rng": rng_state(torch.device(self.cfg.device)), "evaluations": self.evaluations,
             "curve": torch.tensor(self.episode_log.rows(), dtype=torch.float64).reshape(-1, len(EPISODE_COLUMNS)),
         }
         if exp.workers == 1:
@@ -286,6 +288,7 @@ class Training:
         return state
 
     def _save(self) -> Path:
+        self.learner.check()  # never a checkpoint of a diverged learner
         self.counters["seconds"] = time.perf_counter() - self.start
         path = write_checkpoint(self._state(), self.ckpt_path)
         self.saved_frames = self.counters["frames"]

@@ -1,0 +1,138 @@
+"""The GPU's rows of ``make benchmark`` (where CUDA exists), and the projection line.
+
+    .venv/bin/python -m benchmarks.gpu [--frames 3000]        # on a machine with CUDA
+
+* **env**: env-steps/s at B = 65,536 (compiled and eager) against TorchRL's ``VmasEnv`` on the
+  same GPU;
+* **update alone**: SAC updates of the paper recipe (minibatch 128 swarm transitions), the
+  captured update (``cudagraphs=true``) against the uncaptured one, solo and as populations of
+  10 and 80, member-updates/s;
+* **loops**: the paper and fast recipes' whole training loops with ``cudagraphs=true``, solo and
+  populations of 10 and 80, each in a child process: member-updates/s of the loop, its split,
+  the set-up time outside the loop and the peak GPU memory;
+* **projection**: the wall time of the paper's study (8 policies x 10 seeds x 816k updates, as
+  eight populations of ten) and of ten ``fast`` seeds of the ten learned policies at the rates
+  measured; :func:`projection_line` prints it for the CPU's rows too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+if not __package__:  # `python benchmarks/gpu.py`: the repository's root, so `benchmarks` imports
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import torch  # noqa: E402
+
+from benchmarks.population import _transitions, row_in_child  # noqa: E402
+
+# The paper's study: eight learned policies, ten seeds each, and about 816k updates per run
+# (docs/results.md: Policy3-G's paper-recipe run, 816,026 updates in 5000 episodes).
+PAPER_POLICIES, PAPER_SEEDS, PAPER_UPDATES = 8, 10, 816_000
+# Ten seeds of each of the ten learned policies under the fast recipe.
+FAST_POLICIES, FAST_SEEDS = 10, 10
+
+
+def fast_updates() -> int:
+    """Updates of one ``experiment=fast`` run: its batches after the random frames, times the
+    updates per batch (from the composed recipe)."""
+    from flock_torchrl.config import TrainConfig
+    from flock_torchrl.run.trainer import make_train_config
+
+    exp = TrainConfig.from_config(make_train_config("policy3_g", "fast")).experiment
+    frames = exp.num_envs * exp.steps_per_batch
+    learning = math.ceil(exp.max_frames / frames) - math.ceil(exp.init_random_frames / frames) + 1
+    return max(learning, 0) * exp.updates_per_batch
+
+
+def projection_line(where: str, paper_rate: float, fast_rate: float, members: int = 10) -> str:
+    """The study's wall time at ``paper_rate`` and ``fast_rate`` member-updates/s (each a
+    population of ``members`` seeds; one population per policy, one after another)."""
+    paper_h = PAPER_POLICIES * PAPER_SEEDS * PAPER_UPDATES / paper_rate / 3600
+    fast = fast_updates()
+    fast_h = FAST_POLICIES * FAST_SEEDS * fast / fast_rate / 3600
+    return (f"projection ({where}): the paper's study ({PAPER_POLICIES} policies x {PAPER_SEEDS} seeds x "
+            f"{PAPER_UPDATES:,} updates, populations of {members}) at {paper_rate:.0f} member-updates/s: "
+            f"{paper_h:.1f} h; ten fast seeds of the ten learned policies ({fast:,} updates each) at "
+            f"{fast_rate:.0f} member-updates/s: {fast_h:.2f} h")
+
+
+def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str]:
+    """Member-updates/s of the paper recipe's update alone on ``device``: captured against not."""
+    from flock_torchrl.policies.learners import make_learner
+    from flock_torchrl.policies.population import PopulationLearner
+
+    from flock_torchrl import FlockingEnv
+
+    cfg, _, seen = _transitions("paper")
+    env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0, device=device)
+    seen = seen.to(device)
+    size = cfg.algo.batch_size
+    lines = []
+    for k in members:
+        rates = {}
+        for cudagraphs in (False, True):
+            torch.manual_seed(0)
+            if k == 1:
+                learner = make_learner(env, cfg.algo, cfg.policy.critic_input, cudagraphs=cudagraphs)
+                batches = [seen[torch.randint(0, seen.shape[0], (size,), device=device)] for _ in range(8)]
+            else:
+                learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(k)),
+                                            cudagraphs=cudagraphs)
+                batches = [seen[torch.randint(0, seen.shape[0], (size * k,), device=device)].reshape(size, k)
+                           for _ in range(8)]
+            for batch in batches:  # warm-up (and the capture)
+                learner.update(batch)
+            torch.cuda.synchronize()
+            start = time.perf_counter()
+            for i in range(calls):
+                learner.update(batches[i % len(batches)])
+            learner.check()
+            torch.cuda.synchronize()
+            rates[cudagraphs] = k * calls / (time.perf_counter() - start)
+        lines.append(f"GPU update alone, paper recipe, {k:2d} member(s): captured {rates[True]:9.0f} member-updates/s, "
+                     f"uncaptured {rates[False]:8.0f} ({rates[True] / rates[False]:.1f}x)")
+    return lines
+
+
+def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80)) -> list[str]:
+    """Every GPU row, and the GPU's projection line."""
+    from benchmarks.throughput import env_rows, format_rows
+
+    rows = env_rows((65536,), steps=4, repeat=2, device=device)
+    lines = [f"GPU: {torch.cuda.get_device_name(device)}, torch {torch.__version__}",
+             *format_rows(rows).splitlines()[1:], *update_lines(device)]
+    rates: dict[tuple[str, int], float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for recipe in ("paper", "fast"):
+            n = frames if recipe == "paper" else max(frames, 4096)
+            for k in (1, *members):
+                r = row_in_child(recipe, k, n, "false", Path(tmp), device, "true")
+                rates[recipe, k] = r["member_updates_per_s"]
+                split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
+                lines.append(f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true: {r['member_updates_per_s']:9.0f} "
+                             f"member-updates/s ({r['updates']} updates in {r['loop_s']:.1f} s; {split}); set-up "
+                             f"{r['setup_s']:.1f} s; peak GPU memory {r['gpu_peak_mb']:.0f} MB")
+    lines.append(projection_line("GPU", rates["paper", members[0]], rates["fast", members[0]], members[0]))
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=3000)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    if not torch.cuda.is_available():
+        print("benchmarks.gpu: no CUDA device here (torch.cuda.is_available() is False)", file=sys.stderr)
+        sys.exit(2)
+    for line in gpu_lines(frames=args.frames):
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
