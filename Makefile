@@ -235,7 +235,7 @@ tune-baselines: $(STAMP)
 # benchmarks/ is a tool of the repository, not of the installed package. ARGS: e.g. quick=true.
 # Three dimensions (docs/specification.md section 11). train-3d: Policy3-G and its no-instinct twin
 # Policy2-G trained on train3d (experiment=fast; SAC's target entropy -3, the paper's -|A| for three
-# action numbers), seeds THREED_SEEDS, into runs/threed/ (hours: start it deliberately).
+# action numbers), seeds THREED_SEEDS, into runs/threed/ (about 6 min a run on one core here).
 # table3-3d: each of those seeds and the two baselines on train3d, forest3d and wall3d,
 # THREED_EPISODES episodes each (scripts/evaluate.py), into outputs/threed/<reading>/, then their
 # table in the form of Table III, outputs/threed/<reading>/table3_3d.md, and one seeded episode of

@@ -29,7 +29,7 @@ if not __package__:  # `python benchmarks/gpu.py`: the repository's root, so `be
 
 import torch  # noqa: E402
 
-from benchmarks.population import _transitions, row_in_child  # noqa: E402
+from benchmarks.population import recipe_transitions, row_in_child  # noqa: E402
 
 # The paper's study: eight learned policies, ten seeds each, and about 816k updates per run
 # (docs/results.md: Policy3-G's paper-recipe run, 816,026 updates in 5000 episodes).
@@ -69,7 +69,7 @@ def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str
 
     from flock_torchrl import FlockingEnv
 
-    cfg, _, seen = _transitions("paper")
+    cfg, _, seen = recipe_transitions("paper")
     env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0, device=device)
     seen = seen.to(device)
     size = cfg.algo.batch_size

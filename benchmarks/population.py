@@ -35,7 +35,7 @@ from flock_torchrl.run.trainer import make_train_config
 LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
 
 
-def _transitions(recipe: str):
+def recipe_transitions(recipe: str):
     """``(config, env, transitions)``: Policy3-G under ``recipe`` and 200 steps of one world's
     swarm transitions (random actions), what the in-process measurements feed the learners."""
     from flock_torchrl import FlockingEnv
@@ -60,7 +60,7 @@ def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
 
     from flock_torchrl.policies.population import PopulationLearner
 
-    cfg, env, seen = _transitions(recipe)
+    cfg, env, seen = recipe_transitions(recipe)
     # Two members under vmap: the batched products (bmm) the population runs, counted once each.
     learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1])
     batch = seen[torch.randint(0, seen.shape[0], (2 * cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 2)
@@ -121,7 +121,7 @@ def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int =
     from flock_torchrl.policies.learners import make_learner
     from flock_torchrl.policies.population import PopulationLearner
 
-    cfg, env, seen = _transitions(recipe)
+    cfg, env, seen = recipe_transitions(recipe)
     size = cfg.algo.batch_size
     solo = make_learner(env, cfg.algo, cfg.policy.critic_input)
     population = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
