@@ -1,5 +1,5 @@
-"""Why learned flocks crash at 20-50 UAVs (issue 32): crash forensics and evaluation-time ablations
-(logic: flock_torchrl.report.diagnosis; findings: docs/scaling_diagnosis.md).
+"""Why learned flocks crash at 20-50 UAVs: crash forensics and evaluation-time ablations
+(logic: flock_torchrl.report.diagnosis; findings: docs/scaling.md).
 
     python scripts/diagnose.py                                    # the full grid, into outputs/diagnosis/
     python scripts/diagnose.py --sizes 20 --scenarios forest --variants paper instinct_off --episodes 20
@@ -21,11 +21,11 @@ from flock_torchrl.report.diagnosis import (CRASH_COLUMNS, VARIANTS, crash_rows,
 POLICIES = {
     "Policy3-G (trained at 5)": [f"checkpoints/paper_fit/policy3_g/seed{k}.pt" for k in range(3)],
     "Policy3-G mixed (5+20+50)": [f"checkpoints/paper_fit/mixed/policy3_g/seed{k}.pt" for k in range(3)],
-    "Policy3-G-crowd (5+20+50)": [f"checkpoints/paper_fit/mixed/policy3_g_crowd/seed{k}.pt" for k in range(3)],
-    "Policy3-G-crowd-ramp-allround (cluttered)":
-        [f"checkpoints/paper_fit/mixed_cluttered/policy3_g_crowd_ramp_allround/seed{k}.pt" for k in range(3)],
+    "Policy3-G-crowd-ramp-allround-radial (cluttered)":
+        [f"checkpoints/paper_fit/mixed_cluttered/policy3_g_crowd_ramp_allround_radial/seed{k}.pt" for k in range(3)],
 }
-# What a bare run diagnoses (the crowd policy is asked for by name, --policies "Policy3-G-crowd (5+20+50)").
+# What a bare run diagnoses (the scaling policy is asked for by name,
+# --policies "Policy3-G-crowd-ramp-allround-radial (cluttered)").
 DEFAULT_POLICIES = ["Policy3-G (trained at 5)", "Policy3-G mixed (5+20+50)"]
 
 
