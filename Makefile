@@ -51,9 +51,10 @@ readme-demo: $(STAMP)
 	$(PYTHON) -m flock_torchrl.report.splice --demo $(DEMO_DIR)/demo.log $(DEMO_DIR)/run docs/demo.md
 	$(PYTHON) -m flock_torchrl.report.splice README.md
 
-# The documents' copies of results/ (docs/results.md's spliced blocks), refreshed from results/;
-# the publish targets run it last.
+# The documents' copies of results/ (docs/results.md's spliced blocks, README's "Where it stands"
+# written from results/ into results/standing.md), refreshed from results/; the publish targets run it last.
 docs: $(STAMP)
+	$(PYTHON) -m flock_torchrl.report.standing results results/standing.md
 	$(PYTHON) -m flock_torchrl.report.splice docs/results.md README.md
 
 train: $(STAMP)
