@@ -7,7 +7,8 @@ splices it into README.md; the tests compare the file with what this module make
 It reads each reading's ``fidelity.md`` (the score), ``table3.csv`` (ours beside the paper's),
 ``table3_seeds.csv`` and ``table3_paper_recipe_seeds.csv`` (the verdicts over seeds), the paper
 recipe's ``table3_paper_recipe.csv``, and ``paper_fit``'s ``scaling.csv`` and ``scaling_forest.csv``
-(the scaling policy's seeds pooled, beside Olfati-Saber's Policy-MA).
+(the scaling policy's seeds pooled, beside Olfati-Saber's Policy-MA); it also writes that pooled
+comparison per scenario and size, ``results/paper_fit/scaling_pooled.md`` (docs/scaling.md quotes it).
 """
 
 from __future__ import annotations
@@ -183,6 +184,40 @@ def scaling_row(results: Path) -> str:
             f"(at {sizes[-1]} UAVs {at_largest}; docs/scaling.md) |")
 
 
+def _verdict(c: dict) -> str:
+    if c["low"] > c["base_high"]:
+        return "above, beyond both intervals"
+    if c["safe"] >= c["base"]:
+        return "at or above, the intervals overlapping"
+    if c["high"] >= c["base_low"]:
+        return "below, the intervals overlapping"
+    return "below, beyond both intervals"
+
+
+def scaling_summary(reading_dir: str | Path) -> str:
+    """Markdown: the scaling policy's seeds pooled beside Policy-MA, per scenario and swarm size
+    (safe success with 95 % Wilson intervals, success), from ``scaling.csv`` and
+    ``scaling_forest.csv`` of one reading's results."""
+    reading_dir = Path(reading_dir)
+    lines = [f"# {SCALING_POLICY} beside {BASELINE} (reading `{reading_dir.name}`)", "",
+             f"{SCALING_POLICY}'s shipped seeds pooled (the same episodes per seed), beside Olfati-Saber's "
+             f"{BASELINE}, from `scaling.csv` and `scaling_forest.csv` (`make publish-scaling`); rates in %, "
+             "safe success with its 95 % Wilson interval. Written by `make docs`.", "",
+             "| scenario | N | episodes (pooled / Policy-MA) | success: pooled / Policy-MA | safe success, pooled | "
+             "safe success, Policy-MA | safe success against Policy-MA |",
+             "|---|---|---|---|---|---|---|"]
+    for scenario, name in (("train", "scaling.csv"), ("forest", "scaling_forest.csv")):
+        with (reading_dir / name).open(newline="") as handle:
+            base = {int(r["n_uavs"]): float(r["success_rate"]) for r in csv.DictReader(handle)
+                    if r["policy"] == BASELINE}
+        for c in scaling_cells(reading_dir / name):
+            lines.append(f"| {scenario} | {c['n_uavs']} | {c['episodes']} / {c['base_episodes']} | "
+                         f"{_pct(c['success'])} / {_pct(base[c['n_uavs']])} | {_pct(c['safe'])} "
+                         f"[{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['base'])} [{_pct(c['base_low'])}, "
+                         f"{_pct(c['base_high'])}] | {_verdict(c)} |")
+    return "\n".join(lines) + "\n"
+
+
 def standing(results: str | Path = "results") -> str:
     """The markdown of README's "Where it stands" table (a title line first, dropped when spliced)."""
     results = Path(results)
@@ -191,8 +226,12 @@ def standing(results: str | Path = "results") -> str:
     return ("# Where it stands\n\n| question | answer |\n|---|---|\n" + "\n".join(rows) + "\n")
 
 
-def write_standing(results: str | Path = "results", out: str | Path | None = None) -> Path:
-    return write_text(Path(out) if out is not None else Path(results) / "standing.md", standing(results))
+def write_standing(results: str | Path = "results", out: str | Path | None = None) -> list[Path]:
+    """``results/standing.md`` (README's table) and ``results/paper_fit/scaling_pooled.md``
+    (docs/scaling.md's table)."""
+    results = Path(results)
+    return [write_text(Path(out) if out is not None else results / "standing.md", standing(results)),
+            write_text(results / "paper_fit" / "scaling_pooled.md", scaling_summary(results / "paper_fit"))]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -201,7 +240,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("usage: python -m flock_torchrl.report.standing [results_dir] [out.md]", file=sys.stderr)
         return 2
     try:
-        print(f"wrote {write_standing(*args)}")
+        print("wrote " + ", ".join(map(str, write_standing(*args))))
     except (OSError, KeyError, ValueError) as exc:
         print(f"error: standing: {exc}", file=sys.stderr)
         return 2
@@ -212,4 +251,4 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["scaling_cells", "standing", "write_standing"]
+__all__ = ["scaling_cells", "scaling_summary", "standing", "write_standing"]
