@@ -94,7 +94,7 @@ train-paper: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py experiment=paper policy=policy3_g seed=0 progress=false compile=true \
 		resume=auto $(R_ARG)
 
-# The paper's recipe for the policies Table III's claims rest on (issue 19), under paper_fit:
+# The paper's recipe for the policies Table III's claims rest on, under paper_fit:
 # seed 0 of seven policies (Policy3-G's seed 0 is `make train-paper`), then seeds 1 and 2 of
 # Policy3-G, 4-G and 5-G; two single-threaded runs at a time (about 3.5 hours each here), each
 # resuming where it stopped and a finished one doing nothing (resume=auto).

@@ -258,7 +258,7 @@ def test_app_config_composes_an_apps_config_from_names_and_values_and_checks_it(
 
 
 def test_each_experiment_file_lists_the_learner_settings_it_changes():
-    """Issue 28 item 5: an experiment file's header names, per learner, exactly the settings its
+    """An experiment file's header names, per learner, exactly the settings its
     tuning file changes from conf/algo/<algo>.yaml (Table I), with the values a run takes."""
     import re
     from pathlib import Path

@@ -1,4 +1,4 @@
-"""Crash forensics and evaluation-time ablations (flock_torchrl/report/diagnosis.py, issue 32).
+"""Crash forensics and evaluation-time ablations (flock_torchrl/report/diagnosis.py).
 
 Hand-built scenes with answers worked out on paper (arithmetic in the comments), and one
 control: the paper's instinct applied by the wrapper gives the built-in instinct's episodes.

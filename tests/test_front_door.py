@@ -1,4 +1,4 @@
-"""The front door (issue 31, and item 5 of issue 30): README as a new user meets it, the quoted
+"""The front door: README as a new user meets it, the quoted
 output written by the programs, a contender in one world through both doors and refused early,
 the sweeper's direction, sweep folders, launchers, a table of some rows in its own folder,
 progress, the example in the wheel."""
@@ -169,7 +169,7 @@ def test_publish_targets_refresh_the_docs_copies():
     assert "flock_torchrl.report.splice docs/results.md README.md" in docs
     demo = makefile.split("\nreadme-demo:", 1)[1].split("\n\n", 1)[0]
     assert "experiment=demo" in demo and "--demo" in demo and "splice README.md" in demo
-    assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile   # item 12
+    assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile
     assert "about two minutes" not in (ROOT / "conf" / "experiment" / "demo.yaml").read_text()
 
 
@@ -286,7 +286,7 @@ def test_readmes_python_api_block_runs(tmp_path):
                           env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "torch.Size([64, 100, 5, 17])" in proc.stdout and "Policy3-G on s2" in proc.stdout
-    assert "\x1b[" not in proc.stdout + proc.stderr   # no ANSI-coloured log line (item 12)
+    assert "\x1b[" not in proc.stdout + proc.stderr   # no ANSI-coloured log line
 
 
 def test_readme_script_commands_compose():
@@ -436,7 +436,7 @@ def test_evaluate_names_the_contender_in_its_folder():
     assert evaluated_name("policy3_g", "flock_torchrl.examples.goal_separation.make") == "contender-goal_separation"
 
 
-# ---------------------------------------------------------------------------- issue 30, item 5: refused early
+# ---------------------------------------------------------------------------- a bad contender is refused early
 @pytest.mark.parametrize("name", sorted(EXPECT))
 def test_a_bad_contender_is_one_line_naming_it_before_any_row(bad_module, tmp_path, name):
     from flock_torchrl.config import ConfigError, app_config
