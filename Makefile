@@ -56,7 +56,7 @@ readme-demo: $(STAMP)
 docs: $(STAMP)
 	$(PYTHON) -m flock_torchrl.report.standing results results/standing.md
 	$(PYTHON) -m flock_torchrl.report.splice docs/results.md README.md
-	$(PYTHON) -m flock_torchrl.report.splice docs/scaling.md
+	$(PYTHON) -m flock_torchrl.report.splice docs/scaling.md docs/scaling_tables.md
 
 train: $(STAMP)
 	$(PYTHON) scripts/train.py $(R_ARG) $(ARGS)

@@ -132,7 +132,7 @@ def test_moved_sections_live_in_docs():
 def test_quoted_blocks_equal_the_files_that_write_them():
     from flock_torchrl.report.splice import blocks, stale_blocks
 
-    for doc in (README, ROOT / "docs" / "results.md", ROOT / "docs" / "scaling.md"):
+    for doc in (README, *(ROOT / "docs" / name for name in ("results.md", "scaling.md", "scaling_tables.md"))):
         assert blocks(doc.read_text()), f"{doc.name} has no spliced block"
         assert stale_blocks(doc, ROOT) == [], f"{doc.name}: run `make docs` / `make readme-demo`"
     quoted = [p for p, _, _ in blocks((ROOT / "docs" / "results.md").read_text())]

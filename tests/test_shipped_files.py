@@ -51,3 +51,35 @@ def test_the_rule_finds_what_it_must_and_spares_the_rest():
 @pytest.mark.parametrize("name", ["results", "docs", "figures"])
 def test_the_scan_reads_every_folder(name):
     assert any(p.is_relative_to(ROOT / name) for p in shipped_files())
+
+
+def test_docs_pages_read_in_minutes():
+    """No docs page over about 400 lines but the specification, the project's reference."""
+    long = {p.name: n for p in sorted((ROOT / "docs").glob("*.md"))
+            if p.name != "specification.md" and (n := len(p.read_text().splitlines())) > 400}
+    assert not long, f"docs pages over 400 lines: {long}"
+
+
+# How the work was organised is not the product's business (git history keeps it): no issue
+# numbers, no dated audit files, none of these words, in code, tests, conf or docs.
+ORGANISATION = re.compile(r"\bissues? \d+|\bissue item\b|\bsessions?\b|\bmoonshot\b|\blent\b|\bhelpers? session"
+                          r"|cells_moved_|scaling_diagnosis", re.I)
+
+
+def project_text_files() -> list[Path]:
+    files = [ROOT / "README.md", ROOT / "Makefile", ROOT / "pyproject.toml"]
+    for folder, suffixes in (("docs", {".md"}), ("flock_torchrl", {".py"}), ("tests", {".py"}), ("conf", {".yaml"}),
+                             ("scripts", {".py"}), ("benchmarks", {".py"}), ("examples", {".py"})):
+        files += [p for p in sorted((ROOT / folder).rglob("*")) if p.suffix in suffixes and p.is_file()]
+    return [p for p in files if p != Path(__file__).resolve()]
+
+
+def test_no_issue_numbers_or_words_about_the_work():
+    found = {}
+    for path in project_text_files():
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if ORGANISATION.search(line):
+                found.setdefault(str(path.relative_to(ROOT)), []).append(number)
+    assert not found, f"issue numbers or words about how the work was organised, by file and line: {found}"
+    assert ORGANISATION.search("fixed in issue 31") and ORGANISATION.search("this session's merges")
+    assert not ORGANISATION.search("a test process; the training loop; rounds of rejection sampling")
