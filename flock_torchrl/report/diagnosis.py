@@ -1,4 +1,4 @@
-"""Why learned flocks crash at 20-50 UAVs (issue 32, item 1): crash forensics and evaluation-time ablations.
+"""Why learned flocks crash at 20-50 UAVs: crash forensics and evaluation-time ablations.
 
 Two tools, both on the evaluation protocol (seeded batched episodes, deterministic actions):
 
