@@ -311,7 +311,8 @@ def write_overview(recipes: Mapping[str, str | Path], destination: str | Path) -
             "interval of P(X > Y) lies above 0.5 and that of the difference of means above the smallest "
             "difference that matters, "
             + ", ".join(f"{m} {v:g}" for m, v in SMALLEST_DIFFERENCE.items() if m in ("success_rate", "d_min_uav", "d_c"))
-            + "; reversed when both lie below, 0.5 and minus that difference; else not distinguishable; fewer than "
+            + "; reversed when P's interval lies below 0.5 and the difference's below minus that difference; else "
+            "not distinguishable; fewer than "
             f"{MIN_SEEDS} seeds: too few), with P(X > Y), the difference of means and their percentile bootstrap "
             f"intervals ({RESAMPLES} resamples, scipy.stats.bootstrap). Each comparison in full: "
             "`results/<reading>/table3*_claims.md`. Written by `make publish-claims`.\n")
