@@ -183,7 +183,7 @@ publish-claims: $(STAMP)
 		$(PYTHON) -m flock_torchrl.report.seeds --overview results/$$r/claims_overview.md \
 			"fast recipe=results/$$r/table3_seeds.csv" "paper recipe=results/$$r/table3_paper_recipe_seeds.csv" || exit 1; \
 	done
-	$(PYTHON) -m flock_torchrl.report.splice README.md
+	$(MAKE) --no-print-directory docs
 
 # The parts of publish that change when paper-recipe checkpoints are shipped, alone (paper_fit):
 # the paper recipe's Table III, the fast Table III (its "Policy3-G (paper recipe)" row pools
