@@ -172,7 +172,9 @@ def scaling_row(results: Path) -> str:
     at_largest = ", ".join(f"{_pct(c['safe'])} % against {_pct(c['base'])} % {name}" for name, c in largest)
     episodes = sorted({c["base_episodes"] for c in every})
     seeds = sorted({c["seeds"] for c in every})
-    judged = f"at or above Olfati-Saber's (Policy-MA) in {above} of {len(every)} cells"
+    beyond = sum(c["low"] > c["base_high"] for c in every)
+    judged = (f"at or above Olfati-Saber's (Policy-MA) in {above} of {len(every)} cells ({beyond} beyond both 95 % "
+              f"intervals, {above - beyond} with the intervals overlapping)")
     if tied:
         judged += f", below it within the 95 % intervals in {tied}"
     if below:
@@ -180,8 +182,8 @@ def scaling_row(results: Path) -> str:
     return (f"| beyond the paper: flocks of {sizes[0]}-{sizes[-1]} UAVs (`paper_fit`) | your scenarios and "
             f"controllers through Hydra; {SCALING_POLICY} (`experiment=mixed_cluttered`, {_count(seeds)} seeds pooled, "
             f"{_count(episodes)} episodes per seed and cell; its actor sees all round): success "
-            f"{_range([c['success'] for c in every])} at every size on both scenarios; safe success {judged} "
-            f"(at {sizes[-1]} UAVs {at_largest}; docs/scaling.md) |")
+            f"{_range([c['success'] for c in every])} at every size on both scenarios; safe success {judged}; "
+            f"at {sizes[-1]} UAVs {at_largest} (docs/scaling.md) |")
 
 
 def _verdict(c: dict) -> str:
