@@ -1,6 +1,5 @@
 """The command-line apps as a user meets them: sweeps, output folders, what --cfg job shows,
-packaging. Each test is an observation of issue 8 that failed before the Hydra-native
-configuration."""
+packaging. Each test is an observation that failed before the Hydra-native configuration."""
 
 from __future__ import annotations
 
@@ -34,7 +33,7 @@ run = run_script
 def test_a_sweep_gives_each_job_its_own_folder_and_config(tmp_path):
     # Observation 1: jobs 2-4 "resumed" job 1's run and rewrote its config. Now each job has a
     # folder named after its overrides, holding the config it trained with.
-    # hydra.sweep.dir=runs: the same sweep folder both times (by default each sweep gets its own, issue 31).
+    # hydra.sweep.dir=runs: the same sweep folder both times (by default each sweep gets its own).
     run("train.py", "-m", *TINY, "seed=6", "resume=auto", "algo.lr_actor=0.001,0.0001", "scenario.tau_v=0.5,2.0",
         "hydra.sweep.dir=runs", cwd=tmp_path)
     runs = sorted((tmp_path / "runs" / "tiny" / default_reading() / "policy3_g").iterdir())
@@ -105,7 +104,7 @@ def test_the_wheel_carries_the_configs(tmp_path):
         archive.extractall(site)
     assert "flock_torchrl/conf/train.yaml" in names and "flock_torchrl/conf/scenario/s3.yaml" in names
     assert "flock_torchrl/report/reference/table3.csv" in names
-    # The shipped policies travel with it, so the apps reach them from any folder (issue 18, item 4).
+    # The shipped policies travel with it, so the apps reach them from any folder.
     assert "flock_torchrl/checkpoints/paper_fit/policy3_g/seed0.pt" in names
     # Every shipped seed of both readings travels, and the installed package stays under 50 MB.
     installed = sum(p.stat().st_size for p in site.rglob("*") if p.is_file())
@@ -123,7 +122,7 @@ def test_the_wheel_carries_the_configs(tmp_path):
     assert proc.returncode == 0, proc.stderr
     shipped = len(list((ROOT / "checkpoints" / "paper_fit" / "policy3_g").glob("seed*.pt")))
     assert f"pooled over {shipped} checkpoints" in proc.stdout and str(site / "flock_torchrl" / "checkpoints") in proc.stdout
-    # A user's scenario folder outside the repository, trained on and evaluated from the wheel (issue 18).
+    # A user's scenario folder outside the repository, trained on and evaluated from the wheel.
     conf = tmp_path / "my_conf" / "scenario"
     conf.mkdir(parents=True)
     (conf / "corridor.yaml").write_text("defaults: [train, _self_]\nname: corridor\ncircles: []\n"

@@ -1,4 +1,4 @@
-"""Runs that survive real clusters and real terminals (issue 16): sweep jobs resumed by their
+"""Runs that survive real clusters and real terminals: sweep jobs resumed by their
 folder, signals to a whole process group with collector processes, hang-ups, the end-of-run
 evaluation, bad checkpoints, a full disk, torn logs, values the run cannot take, folder names.
 Real processes and real signals where the item is about processes."""

@@ -29,7 +29,7 @@ def test_contenders_are_rows_of_table_3_beside_the_papers_and_outside_its_score(
     rows = {r["policy"]: r for r in rows_of(tmp_path / "with" / "table3.csv")}
     assert {"Policy-MA", "goal_separation", "Policy3-G (seed0)"} <= set(rows)
     assert rows["Policy-MA"]["extra"] == ""
-    assert rows["goal_separation"]["extra"] == f"contender: {EXAMPLE}; world: fov 0.50 pi, instinct off"  # issue 31
+    assert rows["goal_separation"]["extra"] == f"contender: {EXAMPLE}; world: fov 0.50 pi, instinct off"
     assert rows["Policy3-G (seed0)"]["extra"].startswith("contender: ") and float(rows["goal_separation"]["success_rate"]) > 0
     # same protocol: Policy-MA's row is the same with or without contenders; the score ignores them
     plain = {r["policy"]: r for r in rows_of(tmp_path / "plain" / "table3.csv")}

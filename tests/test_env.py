@@ -436,7 +436,7 @@ def test_non_finite_actions_raise_at_step(make_env, bad):
         env.step(td)
 
 
-# ---------------------------------------------------------------------------- misuse (issue 9, item 7)
+# ---------------------------------------------------------------------------- misuse
 @pytest.fixture
 def short_env():
     env = FlockingEnv("train", num_envs=2, seed=0, max_steps=2)

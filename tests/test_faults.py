@@ -1,4 +1,4 @@
-"""Runs that survive what the last fault probe found (issue 30): moved run folders, memory the
+"""Runs that survive what a fault probe found: moved run folders, memory the
 run cannot have, logs a dead run left, disk and file-size faults, crafted checkpoints, env
 misuse, messages that name the right place, signals while collector workers start, sweeps."""
 

@@ -1,4 +1,4 @@
-"""The front door (issue 31, and item 5 of issue 30): README as a new user meets it, the quoted
+"""The front door: README as a new user meets it, the quoted
 output written by the programs, a contender in one world through both doors and refused early,
 the sweeper's direction, sweep folders, launchers, a table of some rows in its own folder,
 progress, the example in the wheel."""
@@ -69,28 +69,46 @@ def test_readme_fits_and_shows_the_two_commands_and_the_environment_first():
     assert 3 <= len(table) <= 10
 
 
-def test_where_it_stands_quotes_results():
-    """Every number of README's 'Where it stands' table is one of results/' own."""
+def test_where_it_stands_is_written_from_results():
+    """README's "Where it stands" is results/standing.md, which report/standing.py writes from
+    results/ (make docs): the file equals what results/ make of it now, and README's block equals
+    the file (test_quoted_blocks_equal_the_files_that_write_them), so no number drifts."""
+    from flock_torchrl.report.standing import standing
+
+    assert (ROOT / "results" / "standing.md").read_text() == standing(ROOT / "results"), \
+        "results/standing.md is stale: run `make docs`"
     lines = readme_lines()
     start = next(i for i, line in enumerate(lines) if line.startswith("**Where it stands**"))
-    table = "\n".join(line for line in lines[start + 1:start + 12] if line.startswith("|"))
-    for reading in ("paper_fit", "literal"):  # each reading's fidelity score, as its summary gives it
+    assert lines[start + 2] == "<!-- splice: results/standing.md -->"
+    table = "\n".join(line for line in lines[start + 1:start + 14] if line.startswith("|"))
+    # independent reads of results/: each reading's fidelity score, Policy3-G's row of Table III
+    for reading in ("paper_fit", "literal"):
         summary = (ROOT / "results" / reading / "summary.md").read_text()
         score = re.search(r"^fidelity score (\d\.\d{3}) ", summary, re.M).group(1)
         assert f"`{reading}` {score}" in table, (reading, score)
     paper_fit = (ROOT / "results" / "paper_fit" / "summary.md").read_text()
-    # Policy3-G's row of Table III (fast recipe): success ours / paper, safe success, closest pair ours / paper
     row = re.search(r"^\| Policy3-G \| [\d.]+ / [\d.]+ \| ([\d.]+) \| ([\d.]+) / ([\d.]+) \|", paper_fit, re.M)
     safe, ours, paper = row.groups()
     assert f"closest pair {ours} m (paper {paper} m), {safe} % of episodes" in table
-    # the fast recipe's success range (learned rows) and the baselines' (rule rows), from the table itself
-    rows = [r for r in paper_fit.split("**Table III, training scenario**")[1].split("\n\n")[1].splitlines()[2:]]
-    success = {r.split("|")[1].strip(): float(r.split("|")[2].split("/")[0]) for r in rows}
-    learned = [v for k, v in success.items() if k.startswith("Policy") and k[6:7].isdigit() and "†" not in k]
-    learned += [success["PolicyD-G"], success["PolicyP-G"]]
-    rules = [success["Policy-MA"], success["Policy-OP"]]
-    assert f"{min(learned):.1f}-{max(learned):.0f} %" in table
-    assert f"{min(rules):.1f}-{max(rules):.1f} %" in table
+
+
+def test_standing_pools_the_scaling_seeds_beside_olfati_saber(tmp_path):
+    """By hand: two seeds of the scaling policy at N = 100, 200 episodes each, safe success 0.70
+    and 0.80, pool to 300 of 400 = 0.75 with its Wilson interval; Policy-MA's 0.72 [0.65, 0.78]
+    lies below 0.75."""
+    from flock_torchrl.report.standing import scaling_cells
+    from flock_torchrl.run.results import wilson_interval
+
+    path = tmp_path / "scaling.csv"
+    head = "policy,n_uavs,success_rate,safe_success_rate,safe_success_rate_low,safe_success_rate_high,n_episodes"
+    path.write_text("\n".join([head,
+                               '"Policy3-G-crowd-ramp-allround-radial [mixed_cluttered, seed 0]",100,1.0,0.70,0,1,200',
+                               '"Policy3-G-crowd-ramp-allround-radial [mixed_cluttered, seed 1]",100,1.0,0.80,0,1,200',
+                               "Policy-MA,100,0.9,0.72,0.65,0.78,200"]) + "\n")
+    (cell,) = scaling_cells(path)
+    assert (cell["n_uavs"], cell["episodes"], cell["seeds"]) == (100, 400, 2)
+    assert cell["safe"] == pytest.approx(0.75) and (cell["low"], cell["high"]) == pytest.approx(wilson_interval(300, 400))
+    assert (cell["base"], cell["base_low"], cell["base_high"]) == (0.72, 0.65, 0.78)
 
 
 def test_readme_and_docs_links_exist():
@@ -114,12 +132,13 @@ def test_moved_sections_live_in_docs():
 def test_quoted_blocks_equal_the_files_that_write_them():
     from flock_torchrl.report.splice import blocks, stale_blocks
 
-    for doc in (README, ROOT / "docs" / "results.md"):
+    for doc in (README, *(ROOT / "docs" / name for name in ("results.md", "scaling.md", "scaling_tables.md"))):
         assert blocks(doc.read_text()), f"{doc.name} has no spliced block"
         assert stale_blocks(doc, ROOT) == [], f"{doc.name}: run `make docs` / `make readme-demo`"
     quoted = [p for p, _, _ in blocks((ROOT / "docs" / "results.md").read_text())]
     assert {"results/paper_fit/summary.md", "results/literal/summary.md"} <= set(quoted)
-    assert [p for p, _, _ in blocks(README.read_text())] == ["docs/demo.md", "results/paper_fit/claims_overview.md"]
+    assert [p for p, _, _ in blocks(README.read_text())] == ["results/standing.md", "docs/demo.md",
+                                                            "results/paper_fit/claims_overview.md"]
 
 
 def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_path):
@@ -150,7 +169,7 @@ def test_publish_targets_refresh_the_docs_copies():
     assert "flock_torchrl.report.splice docs/results.md README.md" in docs
     demo = makefile.split("\nreadme-demo:", 1)[1].split("\n\n", 1)[0]
     assert "experiment=demo" in demo and "--demo" in demo and "splice README.md" in demo
-    assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile   # item 12
+    assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile
     assert "about two minutes" not in (ROOT / "conf" / "experiment" / "demo.yaml").read_text()
 
 
@@ -316,7 +335,7 @@ def test_readmes_python_api_block_runs(tmp_path):
                           env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "torch.Size([64, 100, 5, 17])" in proc.stdout and "Policy3-G on s2" in proc.stdout
-    assert "\x1b[" not in proc.stdout + proc.stderr   # no ANSI-coloured log line (item 12)
+    assert "\x1b[" not in proc.stdout + proc.stderr   # no ANSI-coloured log line
 
 
 def test_readme_script_commands_compose():
@@ -466,7 +485,7 @@ def test_evaluate_names_the_contender_in_its_folder():
     assert evaluated_name("policy3_g", "flock_torchrl.examples.goal_separation.make") == "contender-goal_separation"
 
 
-# ---------------------------------------------------------------------------- issue 30, item 5: refused early
+# ---------------------------------------------------------------------------- a bad contender is refused early
 @pytest.mark.parametrize("name", sorted(EXPECT))
 def test_a_bad_contender_is_one_line_naming_it_before_any_row(bad_module, tmp_path, name):
     from flock_torchrl.config import ConfigError, app_config

@@ -1,4 +1,4 @@
-"""The apps through Hydra's own doors (issue 15; the config doors of issue 18): a user's config
+"""The apps through Hydra's own doors (and its config doors): a user's config
 folder, the search path, other sweepers and launchers, the objective a sweeper optimises, one
 check per job, and the ecosystem around the apps (loggers, TorchRL's own multi-agent wiring)."""
 
@@ -169,7 +169,7 @@ def test_the_package_imports_where_fcntl_does_not_exist(tmp_path):
     assert proc.returncode == 0 and proc.stdout.strip() == "2", proc.stderr
 
 
-@pytest.mark.filterwarnings("error::FutureWarning")   # make test ended with its FutureWarning (issue 31)
+@pytest.mark.filterwarnings("error::FutureWarning")   # make test ended with its FutureWarning
 def test_torchrls_own_multiagent_sac_wiring_trains_on_the_env():
     """TorchRL's multi-agent SAC recipe (sota-implementations/multiagent/sac.py), with no helper
     of this project: MultiAgentMLP policy and critic, ProbabilisticActor + TanhNormal, SACLoss
@@ -203,7 +203,7 @@ def test_torchrls_own_multiagent_sac_wiring_trains_on_the_env():
         MultiAgentMLP(n_agent_inputs=state + act.shape[-1], n_agent_outputs=1, n_agents=n, centralized=True,
                       share_params=True, depth=2, num_cells=32, activation_class=nn.Tanh),
         in_keys=[("agents", "state"), ("agents", "action")], out_keys=[("agents", "state_action_value")])
-    # auto_register_policy_transforms=False: TorchRL 0.14's opt-out of a default change (its FutureWarning, issue 31)
+    # auto_register_policy_transforms=False: TorchRL 0.14's opt-out of a default change (its FutureWarning)
     collector = Collector(env, policy, frames_per_batch=64, total_frames=384, auto_register_policy_transforms=False)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(1000), batch_size=32)
     loss = SACLoss(actor_network=policy, qvalue_network=critic, delay_qvalue=True, action_spec=env.action_spec)

@@ -1,6 +1,5 @@
 """Runs that survive their users: config errors, signals, concurrent runs, resumes, corrupted
-files. Each test is an observation of issue 9 that failed before (its env misuse, item 7, is in
-tests/test_env.py)."""
+files. Each test is an observation that failed before (env misuse is in tests/test_env.py)."""
 
 from __future__ import annotations
 
@@ -234,7 +233,7 @@ def test_corrupted_foreign_and_wrong_kind_checkpoints_say_which(tmp_path):
     (tmp_path / "other" / "last.pt").write_bytes(slim.read_bytes())
     with pytest.raises(CheckpointError, match="slim shipped policy"):
         train(tiny("resume=true"), tmp_path / "other")
-    # Digest-valid, but not what a kind holds (issue 16, item 10): refused naming the missing keys.
+    # Digest-valid, but not what a kind holds : refused naming the missing keys.
     save_checkpoint({"x": 1}, tmp_path / "odd.pt", kind="policy")
     with pytest.raises(CheckpointError, match="policy checkpoint without meta, actor"):
         load_checkpoint(tmp_path / "odd.pt")

@@ -1,13 +1,17 @@
 """Verdicts over seeds (docs/specification.md section 10), on hand-made scores."""
 
+import re
+
 import pytest
 
 from flock_torchrl.report.claims import CLAIMS
 import numpy as np
 
-from flock_torchrl.report.seeds import (claim_verdict, claims_overview, claims_table, compare, comparisons_of, iqm, performance_profile,
-                                        plot_profiles, probability_of_improvement, score_distribution, summarise,
-                                        summary_table, verdict, write_claims)
+from flock_torchrl.report.seeds import (SMALLEST_DIFFERENCE, claim_verdict, claims_overview, claims_table, compare,
+                                        comparisons_of, iqm, performance_profile, plot_profiles,
+                                        probability_of_improvement, score_distribution, smallest_difference,
+                                        summarise, summary_table, verdict, write_claims)
+from helpers import ROOT
 
 
 def test_probability_of_improvement_counts_pairs_and_half_ties():
@@ -25,20 +29,64 @@ def test_iqm_trims_a_quarter_from_each_end():
 
 
 def test_verdict_rule():
-    assert verdict(0.6, 0.9, 10) == "holds"
-    assert verdict(0.1, 0.4, 10) == "reversed"
-    assert verdict(0.4, 0.7, 10) == "not distinguishable"
-    assert verdict(0.9, 1.0, 2) == "too few seeds"
+    # P's interval and the difference's interval, smallest difference 0.01
+    assert verdict(0.6, 0.9, 10, 0.02, 0.05, 0.01) == "holds"
+    assert verdict(0.1, 0.4, 10, -0.05, -0.02, 0.01) == "reversed"
+    assert verdict(0.4, 0.7, 10, 0.02, 0.05, 0.01) == "not distinguishable"   # P's interval holds 0.5
+    assert verdict(0.6, 0.9, 10, 0.005, 0.05, 0.01) == "not distinguishable"  # the difference may be too small
+    assert verdict(0.1, 0.4, 10, -0.05, -0.009, 0.01) == "not distinguishable"
+    assert verdict(0.6, 0.9, 10, 0.01, 0.05, 0.01) == "not distinguishable"   # clearing means strictly beyond
+    assert verdict(0.9, 1.0, 2, 0.5, 0.6, 0.01) == "too few seeds"
+
+
+def test_smallest_differences_are_the_specifications():
+    """docs/specification.md section 10 states them; an unknown metric is refused, naming it."""
+    assert SMALLEST_DIFFERENCE == {"success_rate": 0.01, "safe_success_rate": 0.01, "d_min_uav": 0.1, "d_c": 0.1,
+                                   "t_goal": 1.0}
+    spec = (ROOT / "docs" / "specification.md").read_text()
+    section = spec.split("## 10.", 1)[1]
+    assert "success rate and safe success rate 0.01 (one point), `d_min_uav` 0.1 m and `d_c`\n  0.1 m" in section
+    assert "`t_goal` 1 s" in section
+    with pytest.raises(ValueError, match="'speed'"):
+        smallest_difference("speed")
+
+
+def test_a_sure_but_tiny_difference_is_not_distinguishable():
+    """By hand: four seeds at 0.999 against four at 0.998 (no spread, so every resample is the
+    data): P(X > Y) = 1 with interval [1, 1], clearing 0.5, but the difference of means is
+    0.001 [0.001, 0.001], below one point: not distinguishable. The reverse likewise."""
+    scores = {"X": [0.999] * 4, "Y": [0.998] * 4}
+    c = compare("X", "Y", scores, "success_rate")
+    assert (c.probability, c.low, c.high) == (1.0, 1.0, 1.0)
+    assert c.difference == pytest.approx(0.001) and (c.difference_low, c.difference_high) == pytest.approx((0.001, 0.001))
+    assert c.verdict == "not distinguishable"
+    assert compare("Y", "X", scores, "success_rate").verdict == "not distinguishable"
+    # the same seeds ten points apart: P = 1 and the difference 0.1 [0.1, 0.1] > 0.01: holds
+    far = compare("X", "Y", {"X": [0.999] * 4, "Y": [0.899] * 4}, "success_rate")
+    assert far.difference == pytest.approx(0.1) and far.verdict == "holds"
+    # in metres: 0.05 m apart is below d_min_uav's 0.1 m, 0.2 m is above it
+    assert compare("X", "Y", {"X": [1.65] * 3, "Y": [1.6] * 3}, "d_min_uav").verdict == "not distinguishable"
+    assert compare("X", "Y", {"X": [1.8] * 3, "Y": [1.6] * 3}, "d_min_uav").verdict == "holds"
+
+
+def test_the_difference_interval_comes_from_the_bootstrap():
+    """X = [0.90, 0.92, 0.94], Y = [0.80, 0.82, 0.84]: the difference of means is 0.10; any
+    resample's X mean lies in [0.90, 0.94] and Y's in [0.80, 0.84], so its interval lies within
+    [0.06, 0.14], above 0.01: holds (and P = 1, every X seed above every Y seed)."""
+    c = compare("X", "Y", {"X": [0.90, 0.92, 0.94], "Y": [0.80, 0.82, 0.84]}, "success_rate")
+    assert c.difference == pytest.approx(0.10)
+    assert 0.06 - 1e-12 <= c.difference_low < 0.10 < c.difference_high <= 0.14 + 1e-12
+    assert c.probability == 1.0 and c.verdict == "holds"
 
 
 def test_clearly_separated_seeds_hold_and_overlapping_ones_do_not():
-    apart = compare("A", "B", {"A": [0.9, 0.92, 0.95, 0.91, 0.93], "B": [0.6, 0.62, 0.65, 0.61, 0.63]})
+    apart = compare("A", "B", {"A": [0.9, 0.92, 0.95, 0.91, 0.93], "B": [0.6, 0.62, 0.65, 0.61, 0.63]}, "success_rate")
     assert (apart.probability, apart.verdict) == (1.0, "holds")
     assert apart.low == 1.0   # every resample keeps every A above every B
-    mixed = compare("A", "B", {"A": [0.6, 0.9, 0.7, 0.8, 0.65], "B": [0.62, 0.88, 0.72, 0.78, 0.66]})
+    mixed = compare("A", "B", {"A": [0.6, 0.9, 0.7, 0.8, 0.65], "B": [0.62, 0.88, 0.72, 0.78, 0.66]}, "success_rate")
     assert mixed.verdict == "not distinguishable"
     assert mixed.low < 0.5 < mixed.high
-    reversed_ = compare("B", "A", {"A": [0.9, 0.92, 0.95], "B": [0.6, 0.62, 0.65]})
+    reversed_ = compare("B", "A", {"A": [0.9, 0.92, 0.95], "B": [0.6, 0.62, 0.65]}, "success_rate")
     assert reversed_.verdict == "reversed"
 
 
@@ -70,7 +118,10 @@ def test_claims_table_from_a_seeds_csv(tmp_path):
         rows += [f"Policy5-G,,{0.99 - seed / 100},1.7,3.0", f"Policy3-G,,{0.90 + seed / 100},1.6,3.1"]
     path.write_text("\n".join(rows) + "\n")
     table = claims_table(path)
-    assert "| Policy3-G above Policy5-G | 3 / 3 | 0.00 [0.00, 0.00] | reversed |" in table
+    # difference of means 0.91 - 0.98 = -0.070; every resample lies within [-0.09, -0.05], below -0.01
+    row = re.search(r"\| Policy3-G above Policy5-G \| 3 / 3 \| 0.00 \[0.00, 0.00\] \| -0.070 \[(\S+), (\S+)\] \| (\w+) \|",
+                    table)
+    assert row and -0.09 <= float(row[1]) < -0.07 < float(row[2]) <= -0.05 and row[3] == "reversed"
 
 
 def test_score_distribution_counts_runs_strictly_above_each_level():
@@ -117,6 +168,7 @@ def test_claims_overview_sets_the_paper_beside_each_recipe(tmp_path):
     tangential = next(line for line in table.splitlines() if "tangential" in line)
     # the paper: Policy3-G 0.938 above Policy5-G 0.886 in its Table III; ours: every Policy3-G seed
     # below every Policy5-G seed, so P = 0 and its interval [0, 0]: reversed
-    assert tangential.endswith("| holds (1 of 1) | reversed: P = 0.00 [0.00, 0.00] (3 seeds) | not published |")
+    assert re.search(r"\| holds \(1 of 1\) \| reversed: P = 0.00 \[0.00, 0.00\], difference -0.070 \[-0.0\d\d, -0.0\d\d\] "
+                     r"\(3 seeds\) \| not published \|$", tangential), tangential
     critic = next(line for line in table.splitlines() if "critic" in line)
     assert "no comparison (policies not trained)" in critic

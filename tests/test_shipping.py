@@ -56,8 +56,8 @@ def test_exporting_the_same_run_twice_gives_the_same_bytes(tmp_path):
 
 
 def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_three(tmp_path):
-    """``n_cam`` is a policy scenario field: Policy3-G-crowd8's checkpoint records its eight
-    slots and every evaluation world takes them (observation 2 + 3 x 2 + 8 x 3 = 32); a shipped
+    """``n_cam`` is a policy scenario field: a checkpoint trained with eight camera slots records
+    them and every evaluation world takes them (observation 2 + 3 x 2 + 8 x 3 = 32); a shipped
     checkpoint saved before the field existed (its ``policy_scenario`` lacks ``n_cam``) flies
     with the scenario's three, what it trained with."""
     from flock_torchrl import evaluate
@@ -66,11 +66,11 @@ def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_thr
     from flock_torchrl.policies.registry import checkpoint_handle
     from flock_torchrl.run.rollout import policy_env
 
-    cfg = make_train_config("policy3_g_crowd8", "tiny", ["scenario.max_steps=30", "progress=false", "seed=0",
-                                                         "experiment.eval_every_frames=0", "experiment.eval_episodes=1",
-                                                         "experiment.max_frames=16"])
-    run = train(cfg, tmp_path / "runs" / "crowd8")
-    path = export_policy(run.checkpoint, tmp_path / "crowd8.pt")
+    cfg = make_train_config("policy3_g", "tiny", ["scenario.n_cam=8", "scenario.max_steps=30", "progress=false",
+                                                  "seed=0", "experiment.eval_every_frames=0",
+                                                  "experiment.eval_episodes=1", "experiment.max_frames=16"])
+    run = train(cfg, tmp_path / "runs" / "cam8")
+    path = export_policy(run.checkpoint, tmp_path / "cam8.pt")
     meta = load_checkpoint(path, kind="policy")["meta"]
     assert meta["policy_scenario"]["n_cam"] == 8 and meta["scenario"]["n_cam"] == 8
     handle = checkpoint_handle(path)

@@ -1,4 +1,4 @@
-"""Spawn at any swarm size (issue 10, docs/specification.md sections 1 and 9): a config the
+"""Spawn at any swarm size (docs/specification.md sections 1 and 9): a config the
 check accepts never fails to place its swarm, every start keeps the separation and the
 obstacle clearance, and the spawn disc follows the reading's swarm-size rule."""
 
@@ -45,7 +45,7 @@ def check_starts(env: FlockingEnv) -> None:
 @pytest.mark.parametrize("reading", ["literal", "paper_fit"])
 @pytest.mark.parametrize("scenario, n", [("train", 19), ("train", 50), ("train", 100), ("s3", 20)])
 def test_large_swarms_spawn_at_every_reset(reading, scenario, n):
-    # Issue 10: n_uavs=19 raised SpawnError in 54 of 300 resets. Now 5 x 64 = 320 resets, and
+    # Once n_uavs=19 raised SpawnError in 54 of 300 resets. Now 5 x 64 = 320 resets, and
     # partial resets, place every swarm validly.
     env = FlockingEnv(scenario, num_envs=64, seed=19, reading=reading, n_uavs=n)
     for _ in range(5):

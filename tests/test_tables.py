@@ -275,7 +275,7 @@ def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
 
 @pytest.mark.slow
 def test_scaling_table_puts_the_baselines_beside_a_learned_policy_on_forest(tmp_path, monkeypatch):
-    """Issue 32 item 4: ``others`` takes the rule-based baselines (rows named as in the paper, no
+    """``others`` takes the rule-based baselines (rows named as in the paper, no
     training seed), and ``scenario="forest"`` flies every row in the forest, into scaling_forest.*
     (the training scenario's scaling.* stay as they are). The header names the shipped checkpoint
     relative to the working directory, never by this machine's absolute path."""

@@ -229,7 +229,7 @@ def test_compile_step_compiles_the_env_and_leaves_the_loss_eager():
 
 @pytest.mark.slow
 def test_two_compiled_learners_of_different_sizes_share_a_process():
-    """A sweep's worker process (or this test session) compiles learners of several sizes: each
+    """A sweep's worker process (or this test process) compiles learners of several sizes: each
     recompiles for its own shapes (static), where dynamic shapes broke TorchRL's vmapped twin Q."""
     import dataclasses
 

@@ -353,7 +353,7 @@ def check_booleans(values: Any, prefix: str = "scenario") -> None:
 # The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
 # interface): a checkpoint records them, and evaluation applies them in any scenario. A
 # checkpoint written before a field was added here flies with the scenario's value of it,
-# which is what it trained with (``n_cam``: 3 for every policy before Policy3-G-crowd8).
+# which is what it trained with (``n_cam``: 3 for every checkpoint written before the field existed).
 POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
                           "cohesion_range", "collision_shape", "actor_camera", "action_mode")
 READINGS = ("literal", "paper_fit")
@@ -362,7 +362,7 @@ READINGS = ("literal", "paper_fit")
 FULL_HEIGHT = 1e6
 # How the UAVs' part of the instinct applies (field ``instinct_mode``; world/instinct.py
 # ``hold_in_crowd``): ``paper`` sums it as Eq. 29 does; the others are variants beyond the paper
-# that hold in a crowd (docs/specification.md section 3; docs/scaling_diagnosis.md measured them).
+# that hold in a crowd (docs/specification.md section 3; docs/scaling.md measured them).
 INSTINCT_MODES = ("paper", "no_push_in", "saturated")
 # The range of r_f's cohesion term (field ``cohesion_range``; world/reward.py ``cohesion_range``):
 # ``paper`` is Eq. 24's 3 m at every swarm size; ``sqrt_n`` grows it as the radius a swarm of

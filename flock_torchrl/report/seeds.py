@@ -26,11 +26,19 @@ MIN_SEEDS = 3          # fewer seeds on either side of a comparison: no verdict
 BOOTSTRAP_SEED = 2024
 PROFILE_LEVELS = np.linspace(0.0, 1.0, 201)   # success levels of a performance profile
 SUMMARY_METRICS = ("success_rate", "safe_success_rate", "d_min_uav", "d_c")
+# The smallest difference of means that matters, per metric (docs/specification.md section 10): a
+# comparison holds or reverses only when the interval of its difference clears it.
+SMALLEST_DIFFERENCE = {"success_rate": 0.01, "safe_success_rate": 0.01, "d_min_uav": 0.1, "d_c": 0.1, "t_goal": 1.0}
 
 
 def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
     """Interquartile mean: the mean of the middle 50 % (25 % trimmed from each end)."""
     return stats.trim_mean(scores, 0.25, axis=axis)
+
+
+def mean_difference(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
+    """mean(X) - mean(Y) over the seeds of each side."""
+    return np.mean(x, axis=axis) - np.mean(y, axis=axis)
 
 
 def probability_of_improvement(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -108,7 +116,8 @@ def summarise(scores: Sequence[float]) -> SeedSummary:
 
 @dataclass(frozen=True)
 class Comparison:
-    """``better`` above ``worse`` on a metric: P(better > worse) with its interval and verdict."""
+    """``better`` above ``worse`` on a metric: P(better > worse) with its interval, the difference
+    of means with its interval, and the verdict."""
 
     better: str
     worse: str
@@ -116,24 +125,37 @@ class Comparison:
     low: float
     high: float
     verdict: str
+    difference: float = math.nan
+    difference_low: float = math.nan
+    difference_high: float = math.nan
 
 
-def verdict(low: float, high: float, n: int) -> str:
-    """The rule of docs/specification.md section 10."""
+def smallest_difference(metric: str) -> float:
+    """The metric's smallest difference that matters (:data:`SMALLEST_DIFFERENCE`)."""
+    if metric not in SMALLEST_DIFFERENCE:
+        raise ValueError(f"no smallest difference is set for metric {metric!r}; known: {sorted(SMALLEST_DIFFERENCE)}")
+    return SMALLEST_DIFFERENCE[metric]
+
+
+def verdict(low: float, high: float, n: int, difference_low: float, difference_high: float, smallest: float) -> str:
+    """The rule of docs/specification.md section 10: P(X > Y)'s interval ``[low, high]`` must
+    clear 0.5 and the difference of means' interval must clear ``smallest`` on the same side."""
     if n < MIN_SEEDS:
         return "too few seeds"
-    if low > 0.5:
+    if low > 0.5 and difference_low > smallest:
         return "holds"
-    if high < 0.5:
+    if high < 0.5 and difference_high < -smallest:
         return "reversed"
     return "not distinguishable"
 
 
-def compare(better: str, worse: str, scores: Mapping[str, Sequence[float]]) -> Comparison:
+def compare(better: str, worse: str, scores: Mapping[str, Sequence[float]], metric: str) -> Comparison:
     x, y = np.asarray(scores[better], float), np.asarray(scores[worse], float)
     low, high = _interval(probability_of_improvement, [x, y])
+    d_low, d_high = _interval(mean_difference, [x, y])
     return Comparison(better, worse, float(probability_of_improvement(x, y)), low, high,
-                      verdict(low, high, min(len(x), len(y))))
+                      verdict(low, high, min(len(x), len(y)), d_low, d_high, smallest_difference(metric)),
+                      float(mean_difference(x, y)), d_low, d_high)
 
 
 def claim_verdict(comparisons: Sequence[Comparison]) -> str:
@@ -160,7 +182,7 @@ def comparisons_of(claim: Claim, scores: Mapping[str, Sequence[float]]) -> list[
         pairs = [(b, groups[0][0]) for b in groups[1] if b != groups[0][0]]
     else:                            # a threshold claim (above 1 m): no comparison of policies
         return []
-    return [compare(x, y, scores) for x, y in pairs if x in scores and y in scores]
+    return [compare(x, y, scores, claim.metric) for x, y in pairs if x in scores and y in scores]
 
 
 def read_seed_scores(path: str | Path, metric: str) -> dict[str, list[float]]:
@@ -178,17 +200,23 @@ def read_seed_scores(path: str | Path, metric: str) -> dict[str, list[float]]:
 
 def claims_table(seeds_csv: str | Path) -> str:
     """Markdown: every claim of :data:`~.claims.CLAIMS` over the seeds of ``seeds_csv``."""
-    lines = ["| claim | comparison | seeds | P(better > worse) [95 %] | verdict |", "|---|---|---|---|---|"]
+    lines = ["| claim | comparison | seeds | P(better > worse) [95 %] | difference of means [95 %] | verdict |",
+             "|---|---|---|---|---|---|"]
     for claim in CLAIMS:
         scores = read_seed_scores(seeds_csv, claim.metric)
         found = comparisons_of(claim, scores)
         for c in found:
             n = f"{len(scores[c.better])} / {len(scores[c.worse])}"
             lines.append(f"| {claim.text} | {c.better} above {c.worse} | {n} | {c.probability:.2f} "
-                         f"[{c.low:.2f}, {c.high:.2f}] | {c.verdict} |")
+                         f"[{c.low:.2f}, {c.high:.2f}] | {_difference(c)} | {c.verdict} |")
         if found:
-            lines.append(f"| {claim.text} | **the claim** | | | **{claim_verdict(found)}** |")
+            lines.append(f"| {claim.text} | **the claim** | | | smallest that matters: "
+                         f"{smallest_difference(claim.metric):g} | **{claim_verdict(found)}** |")
     return "\n".join(lines) + "\n"
+
+
+def _difference(c: Comparison) -> str:
+    return f"{c.difference:+.3f} [{c.difference_low:+.3f}, {c.difference_high:+.3f}]"
 
 
 def summary_table(seeds_csv: str | Path, metrics: Sequence[str] = SUMMARY_METRICS) -> str:
@@ -243,9 +271,11 @@ def _seed_cell(claim: Claim, seeds_csv: str | Path) -> str:
     seeds = (f"{counts[0]} seed" + "s" * (counts[0] != 1)) if len(counts) == 1 else f"{counts[0]}-{counts[-1]} seeds"
     if len(found) == 1:
         c = found[0]
-        return f"{c.verdict}: P = {c.probability:.2f} [{c.low:.2f}, {c.high:.2f}] ({seeds})"
-    ps = [c.probability for c in found]
-    return f"{claim_verdict(found)}: P {min(ps):.2f}-{max(ps):.2f} over {len(found)} pairs ({seeds} each)"
+        return (f"{c.verdict}: P = {c.probability:.2f} [{c.low:.2f}, {c.high:.2f}], difference "
+                f"{_difference(c)} ({seeds})")
+    ps, ds = [c.probability for c in found], [c.difference for c in found]
+    return (f"{claim_verdict(found)}: P {min(ps):.2f}-{max(ps):.2f}, difference {min(ds):+.3f} to {max(ds):+.3f} "
+            f"over {len(found)} pairs ({seeds} each)")
 
 
 def _paper_cell(claim: Claim) -> str:
@@ -278,9 +308,13 @@ def write_overview(recipes: Mapping[str, str | Path], destination: str | Path) -
             + claims_overview(recipes)
             + "\nPaper: the comparisons that hold in the paper's own Table III (one value per policy). "
             "Ours: the verdict of docs/specification.md section 10 over trained seeds (holds when the 95 % "
-            "interval of P(X > Y) lies above 0.5, reversed below, else not distinguishable; fewer than "
-            f"{MIN_SEEDS} seeds: too few), with P(X > Y) and its percentile bootstrap interval "
-            f"({RESAMPLES} resamples, scipy.stats.bootstrap). Each comparison in full: "
+            "interval of P(X > Y) lies above 0.5 and that of the difference of means above the smallest "
+            "difference that matters, "
+            + ", ".join(f"{m} {v:g}" for m, v in SMALLEST_DIFFERENCE.items() if m in ("success_rate", "d_min_uav", "d_c"))
+            + "; reversed when P's interval lies below 0.5 and the difference's below minus that difference; else "
+            "not distinguishable; fewer than "
+            f"{MIN_SEEDS} seeds: too few), with P(X > Y), the difference of means and their percentile bootstrap "
+            f"intervals ({RESAMPLES} resamples, scipy.stats.bootstrap). Each comparison in full: "
             "`results/<reading>/table3*_claims.md`. Written by `make publish-claims`.\n")
     return write_text(destination, text)
 
@@ -291,9 +325,10 @@ def write_claims(seeds_csv: str | Path, destination: str | Path) -> Path:
     from ..io import write_text
 
     text = (f"# The paper's claims over seeds: `{Path(seeds_csv).name}`\n\n"
-            "Each comparison is P(X > Y) over the seeds' scores (ties half) with a 95 % percentile bootstrap "
-            f"interval ({RESAMPLES} resamples, scipy.stats.bootstrap); the verdict follows "
-            "docs/specification.md section 10. Written by `python -m flock_torchrl.report.seeds`.\n\n"
+            "Each comparison is P(X > Y) over the seeds' scores (ties half) and the difference of their means, "
+            f"each with a 95 % percentile bootstrap interval ({RESAMPLES} resamples, scipy.stats.bootstrap); the "
+            "verdict follows docs/specification.md section 10 (both intervals clear their thresholds: 0.5, and "
+            "the metric's smallest difference that matters). Written by `python -m flock_torchrl.report.seeds`.\n\n"
             + claims_table(seeds_csv)
             + "\n## Per policy, over seeds\n\nIntervals: percentile bootstrap over seeds, as above; a single "
             "seed has no interval (its value twice).\n\n" + summary_table(seeds_csv))
@@ -324,6 +359,7 @@ if __name__ == "__main__":
     main()
 
 
-__all__ = ["Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_overview", "claims_table", "compare", "comparisons_of", "iqm",
-           "performance_profile", "plot_profiles", "probability_of_improvement", "read_seed_scores",
-           "score_distribution", "summarise", "summary_table", "verdict", "write_claims", "write_overview"]
+__all__ = ["SMALLEST_DIFFERENCE", "Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_overview",
+           "claims_table", "compare", "comparisons_of", "iqm", "mean_difference", "performance_profile",
+           "plot_profiles", "probability_of_improvement", "read_seed_scores", "score_distribution",
+           "smallest_difference", "summarise", "summary_table", "verdict", "write_claims", "write_overview"]

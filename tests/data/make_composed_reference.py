@@ -1,5 +1,5 @@
 """Writes tests/data/composed_train_configs.json: what conf/train.yaml composes for every policy x
-experiment x reading, generated once from main before configuration became a package (issue 28),
+experiment x reading, generated once from main before configuration became a package,
 so that tests/test_config_compose.py can show every composition kept its values.
 
     .venv/bin/python tests/data/make_composed_reference.py

@@ -1,0 +1,256 @@
+"""README's "Where it stands", written from ``results/``: every number of that table comes from the
+published tables, so it cannot drift from them (``make docs`` writes ``results/standing.md`` and
+splices it into README.md; the tests compare the file with what this module makes of ``results/``).
+
+    python -m flock_torchrl.report.standing [results_dir] [out.md]
+
+It reads each reading's ``fidelity.md`` (the score), ``table3.csv`` (ours beside the paper's),
+``table3_seeds.csv`` and ``table3_paper_recipe_seeds.csv`` (the verdicts over seeds), the paper
+recipe's ``table3_paper_recipe.csv``, and ``paper_fit``'s ``scaling.csv`` and ``scaling_forest.csv``
+(the scaling policy's seeds pooled, beside Olfati-Saber's Policy-MA); it also writes that pooled
+comparison per scenario and size, ``results/paper_fit/scaling_pooled.md`` (docs/scaling.md quotes it).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from ..io import write_text
+from ..run.results import wilson_interval
+from .claims import CLAIMS, LEARNED
+from .seeds import claim_verdict, comparisons_of, read_seed_scores
+
+READINGS = ("paper_fit", "literal")
+SCALING_POLICY = "Policy3-G-crowd-ramp-allround-radial"
+BASELINE = "Policy-MA"                      # Olfati-Saber's flocking, the scaling tables' yardstick
+INSTINCT_CLAIM, *_ = (c for c in CLAIMS if c.metric == "d_min_uav" and c.compare.__name__ == "_all_above")
+SUCCESS_CLAIMS = [c for c in CLAIMS if c.metric == "success_rate"]
+
+
+def _rows(path: Path) -> dict[str, dict[str, str]]:
+    with path.open(newline="") as handle:
+        return {row["policy"]: row for row in csv.DictReader(handle)}
+
+
+def _fidelity(results: Path, reading: str) -> str:
+    text = (results / reading / "fidelity.md").read_text()
+    found = re.search(r"^fidelity score (\d+\.\d{3}) ", text, re.M)
+    if not found:
+        raise ValueError(f"{results / reading / 'fidelity.md'} states no fidelity score")
+    return found.group(1)
+
+
+def _pct(value: float) -> str:
+    return f"{100 * value:.1f}"
+
+
+def _range(values: Sequence[float]) -> str:
+    low, high = _pct(min(values)), _pct(max(values))
+    return f"{low} %" if low == high else f"{low}-{high} %"
+
+
+def _seeds(results: Path, reading: str, stem: str = "table3") -> list[int]:
+    scores = read_seed_scores(results / reading / f"{stem}_seeds.csv", "success_rate")
+    return sorted({len(v) for k, v in scores.items() if k in LEARNED})
+
+
+def _count(seeds: list[int]) -> str:
+    return str(seeds[0]) if len(seeds) == 1 else f"{seeds[0]}-{seeds[-1]}"
+
+
+def _verdicts(seeds_csv: Path, claims) -> list[str]:
+    out = []
+    for claim in claims:
+        found = comparisons_of(claim, read_seed_scores(seeds_csv, claim.metric))
+        out.append(claim_verdict(found) if found else "no comparison")
+    return out
+
+
+def _learned(rows: dict[str, dict[str, str]], key: str) -> dict[str, float]:
+    return {p: float(rows[p][key]) for p in LEARNED if p in rows and rows[p].get(key) not in (None, "")}
+
+
+def instinct_row(results: Path) -> str:
+    rows = _rows(results / "paper_fit" / "table3.csv")
+    p3g = rows["Policy3-G"]
+    without = [float(rows[p]["d_min_uav"]) for p in INSTINCT_CLAIM.groups[1]]
+    (verdict,) = _verdicts(results / "paper_fit" / "table3_seeds.csv", [INSTINCT_CLAIM])
+    return (f"| the instinct keeps UAVs apart (the paper's central claim) | {verdict} over seeds under `paper_fit`: "
+            f"Policy3-G's closest pair {float(p3g['d_min_uav']):.3f} m (paper {float(p3g['d_min_uav_paper']):.3f} m), "
+            f"{_pct(float(p3g['safe_success_rate']))} % of episodes without a pair within 0.5 m; without the "
+            f"instinct {min(without):.3f}-{max(without):.3f} m |")
+
+
+def fidelity_row(results: Path) -> str:
+    cells = []
+    for reading in READINGS:
+        note = "the default reading; " if reading == "paper_fit" else ""
+        cells.append(f"`{reading}` {_fidelity(results, reading)} ({note}{_count(_seeds(results, reading))} seeds "
+                     "pooled per learned policy)")
+    return "| fidelity score (1.0: one paper std off on average; lower is closer) | " + ", ".join(cells) + " |"
+
+
+def success_row(results: Path) -> str:
+    cells = []
+    for reading in READINGS:
+        rows = _rows(results / reading / "table3.csv")
+        ours, paper = _learned(rows, "success_rate"), _learned(rows, "success_rate_paper")
+        cells.append(f"`{reading}` {_range(list(ours.values()))} (paper {_range(list(paper.values()))})")
+    verdicts = _verdicts(results / "paper_fit" / "table3_seeds.csv", SUCCESS_CLAIMS)
+    held = sum(v == "holds" for v in verdicts)
+    seeds = _count(_seeds(results, "paper_fit"))
+    return (f"| success of the learned policies, fast recipe ({seeds} seeds each) | " + "; ".join(cells)
+            + f": saturated, so {held} of the paper's {len(SUCCESS_CLAIMS)} claims on success differences hold "
+            "over seeds (`paper_fit`) |")
+
+
+def paper_recipe_row(results: Path) -> str:
+    table = results / "paper_fit" / "table3_paper_recipe.csv"
+    rows = _rows(table)
+    trained = {p: float(r["success_rate"]) for p, r in rows.items()
+               if p in LEARNED and r.get("success_rate") not in (None, "") and int(float(r["n_checkpoints"] or 0))}
+    seeds = _seeds(results, "paper_fit", "table3_paper_recipe")
+    verdicts = _verdicts(results / "paper_fit" / "table3_paper_recipe_seeds.csv", SUCCESS_CLAIMS)
+    held = sum(v == "holds" for v in verdicts)
+    return (f"| the paper's own recipe (5000 episodes; {len(trained)} policies, {_count(seeds)} seeds each; "
+            f"`paper_fit`) | {_range(list(trained.values()))}; {held} of the {len(SUCCESS_CLAIMS)} success claims "
+            "hold over seeds |")
+
+
+def baseline_row(results: Path) -> str:
+    cells = []
+    for reading in READINGS:
+        rows = _rows(results / reading / "table3.csv")
+        cells.append(f"`{reading}` Policy-MA {_pct(float(rows['Policy-MA']['success_rate']))} %, "
+                     f"Policy-OP {_pct(float(rows['Policy-OP']['success_rate']))} %")
+    return "| rule-based baselines (retuned per reading), success | " + "; ".join(cells) + " |"
+
+
+def _pooled(rows: list[dict[str, str]], size: int, key: str) -> tuple[float, float, float, int]:
+    """The seeds' rows at one swarm size pooled: rate, Wilson interval, episodes."""
+    cells = [r for r in rows if int(r["n_uavs"]) == size]
+    n = sum(int(r["n_episodes"]) for r in cells)
+    k = round(sum(float(r[key]) * int(r["n_episodes"]) for r in cells))
+    return (k / n, *wilson_interval(k, n), n)
+
+
+def scaling_cells(path: Path) -> list[dict]:
+    """Per swarm size: the scaling policy's seeds pooled beside Policy-MA (safe success, success)."""
+    with path.open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    mine = [r for r in rows if r["policy"].startswith(f"{SCALING_POLICY} [")]
+    base = {int(r["n_uavs"]): r for r in rows if r["policy"] == BASELINE}
+    if not mine or not base:
+        raise ValueError(f"{path} holds no rows of {SCALING_POLICY} or {BASELINE}")
+    cells = []
+    for size in sorted({int(r["n_uavs"]) for r in mine}):
+        safe, low, high, n = _pooled(mine, size, "safe_success_rate")
+        b = base[size]
+        cells.append({"n_uavs": size, "safe": safe, "low": low, "high": high, "episodes": n,
+                      "seeds": sum(int(r["n_uavs"]) == size for r in mine),
+                      "success": _pooled(mine, size, "success_rate")[0],
+                      "base": float(b["safe_success_rate"]), "base_low": float(b["safe_success_rate_low"]),
+                      "base_high": float(b["safe_success_rate_high"]), "base_episodes": int(b["n_episodes"])})
+    return cells
+
+
+def scaling_row(results: Path) -> str:
+    scenarios = {"on the training scenario": results / "paper_fit" / "scaling.csv",
+                 "in the forest": results / "paper_fit" / "scaling_forest.csv"}
+    cells = {name: scaling_cells(path) for name, path in scenarios.items()}
+    every = [c for found in cells.values() for c in found]
+    above = sum(c["safe"] >= c["base"] for c in every)
+    tied = sum(c["safe"] < c["base"] and c["high"] >= c["base_low"] for c in every)
+    below = len(every) - above - tied
+    sizes = sorted({c["n_uavs"] for c in every})
+    largest = [(name, next(c for c in found if c["n_uavs"] == sizes[-1])) for name, found in cells.items()]
+    at_largest = ", ".join(f"{_pct(c['safe'])} % against {_pct(c['base'])} % {name}" for name, c in largest)
+    episodes = sorted({c["base_episodes"] for c in every})
+    seeds = sorted({c["seeds"] for c in every})
+    beyond = sum(c["low"] > c["base_high"] for c in every)
+    judged = (f"at or above Olfati-Saber's (Policy-MA) in {above} of {len(every)} cells ({beyond} beyond both 95 % "
+              f"intervals, {above - beyond} with the intervals overlapping)")
+    if tied:
+        judged += f", below it within the 95 % intervals in {tied}"
+    if below:
+        judged += f", below it beyond the intervals in {below}"
+    return (f"| beyond the paper: flocks of {sizes[0]}-{sizes[-1]} UAVs (`paper_fit`) | your scenarios and "
+            f"controllers through Hydra; {SCALING_POLICY} (`experiment=mixed_cluttered`, {_count(seeds)} seeds pooled, "
+            f"{_count(episodes)} episodes per seed and cell; its actor sees all round): success "
+            f"{_range([c['success'] for c in every])} at every size on both scenarios; safe success {judged}; "
+            f"at {sizes[-1]} UAVs {at_largest} (docs/scaling.md) |")
+
+
+def _verdict(c: dict) -> str:
+    if c["low"] > c["base_high"]:
+        return "above, beyond both intervals"
+    if c["safe"] >= c["base"]:
+        return "at or above, the intervals overlapping"
+    if c["high"] >= c["base_low"]:
+        return "below, the intervals overlapping"
+    return "below, beyond both intervals"
+
+
+def scaling_summary(reading_dir: str | Path) -> str:
+    """Markdown: the scaling policy's seeds pooled beside Policy-MA, per scenario and swarm size
+    (safe success with 95 % Wilson intervals, success), from ``scaling.csv`` and
+    ``scaling_forest.csv`` of one reading's results."""
+    reading_dir = Path(reading_dir)
+    lines = [f"# {SCALING_POLICY} beside {BASELINE} (reading `{reading_dir.name}`)", "",
+             f"{SCALING_POLICY}'s shipped seeds pooled (the same episodes per seed), beside Olfati-Saber's "
+             f"{BASELINE}, from `scaling.csv` and `scaling_forest.csv` (`make publish-scaling`); rates in %, "
+             "safe success with its 95 % Wilson interval. Written by `make docs`.", "",
+             "| scenario | N | episodes (pooled / Policy-MA) | success: pooled / Policy-MA | safe success, pooled | "
+             "safe success, Policy-MA | safe success against Policy-MA |",
+             "|---|---|---|---|---|---|---|"]
+    for scenario, name in (("train", "scaling.csv"), ("forest", "scaling_forest.csv")):
+        with (reading_dir / name).open(newline="") as handle:
+            base = {int(r["n_uavs"]): float(r["success_rate"]) for r in csv.DictReader(handle)
+                    if r["policy"] == BASELINE}
+        for c in scaling_cells(reading_dir / name):
+            lines.append(f"| {scenario} | {c['n_uavs']} | {c['episodes']} / {c['base_episodes']} | "
+                         f"{_pct(c['success'])} / {_pct(base[c['n_uavs']])} | {_pct(c['safe'])} "
+                         f"[{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['base'])} [{_pct(c['base_low'])}, "
+                         f"{_pct(c['base_high'])}] | {_verdict(c)} |")
+    return "\n".join(lines) + "\n"
+
+
+def standing(results: str | Path = "results") -> str:
+    """The markdown of README's "Where it stands" table (a title line first, dropped when spliced)."""
+    results = Path(results)
+    rows = [instinct_row(results), fidelity_row(results), success_row(results), paper_recipe_row(results),
+            baseline_row(results), scaling_row(results)]
+    return ("# Where it stands\n\n| question | answer |\n|---|---|\n" + "\n".join(rows) + "\n")
+
+
+def write_standing(results: str | Path = "results", out: str | Path | None = None) -> list[Path]:
+    """``results/standing.md`` (README's table) and ``results/paper_fit/scaling_pooled.md``
+    (docs/scaling.md's table)."""
+    results = Path(results)
+    return [write_text(Path(out) if out is not None else results / "standing.md", standing(results)),
+            write_text(results / "paper_fit" / "scaling_pooled.md", scaling_summary(results / "paper_fit"))]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) > 2:
+        print("usage: python -m flock_torchrl.report.standing [results_dir] [out.md]", file=sys.stderr)
+        return 2
+    try:
+        print("wrote " + ", ".join(map(str, write_standing(*args))))
+    except (OSError, KeyError, ValueError) as exc:
+        print(f"error: standing: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
+__all__ = ["scaling_cells", "scaling_summary", "standing", "write_standing"]
