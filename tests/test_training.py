@@ -119,10 +119,13 @@ def test_checkpoint_with_code_never_runs(tmp_path, capsys):
     assert "this must never run" not in capsys.readouterr().out
 
 
-def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
+@pytest.mark.parametrize("cudagraphs", [False, True], ids=["eager", "captured"])
+def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch, cudagraphs):
+    """The captured update keeps its finite-loss flags on the device and checks them before every
+    checkpoint: a diverged run stops the same way and keeps its last good checkpoint."""
     from torchrl.data import TensorDictReplayBuffer
 
-    cfg = tiny("policy3_g", "experiment.max_frames=320")
+    cfg = tiny("policy3_g", "experiment.max_frames=320", f"cudagraphs={str(cudagraphs).lower()}")
     calls = {"n": 0}
     original = TensorDictReplayBuffer.sample
 

@@ -300,9 +300,8 @@ class SharedPolicy(TensorDictModuleBase):
         # [-1, 1]^3 in a 3-D world, docs/specification.md section 11).
         limit = 1.0 if scenario.action_mode == "policy" else float(scenario.v_max)
         self.dims = scenario.dims
-        box = torch.full((scenario.dims,), limit, device=device)
-        self.actor = actor_of_sizes(observation_size(scenario), -box, box, device=device, stochastic=meta["stochastic"],
-                                    hidden=meta["hidden"], depth=meta["depth"])
+        self._sizes = (observation_size(scenario), limit)
+        self.actor = self._build(device)
         expected = self.actor.state_dict()
         for name in sorted(set(expected) | set(actor_state)):
             want, got = expected.get(name), actor_state.get(name)
@@ -312,8 +311,15 @@ class SharedPolicy(TensorDictModuleBase):
                                       f"(obs {observation_size(scenario)}, hidden {meta['hidden']}, depth "
                                       f"{meta['depth']}) needs {shape(want)}")
         self.actor.load_state_dict(actor_state)
-        self._sizes = (observation_size(scenario), limit)
         self._device = device  # where the actor and its action box are
+
+    def _build(self, device: torch.device) -> Any:
+        """A fresh actor of this policy's sizes on ``device``, with its action box there too."""
+        n_obs, limit = self._sizes
+        box = torch.full((self.dims,), limit, device=device)
+        meta = self.flock_meta
+        return actor_of_sizes(n_obs, -box, box, device=device, stochastic=meta["stochastic"],
+                              hidden=meta["hidden"], depth=meta["depth"])
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = tensordict.get(OBS, None)
@@ -325,12 +331,8 @@ class SharedPolicy(TensorDictModuleBase):
         """Move the actor, and the action box its distribution reads, to ``device`` (what a
         call with observations on another device does by itself: the policy follows its env)."""
         device = torch.device(device)
-        n_obs, limit = self._sizes
-        box = torch.full((self.dims,), limit, device=device)
         state = {k: v.to(device) for k, v in self.actor.state_dict().items()}
-        meta = self.flock_meta
-        self.actor = actor_of_sizes(n_obs, -box, box, device=device, stochastic=meta["stochastic"],
-                                    hidden=meta["hidden"], depth=meta["depth"])
+        self.actor = self._build(device)
         self.actor.load_state_dict(state)
         self._device = device
         return self
