@@ -7,7 +7,8 @@
 * **update alone**: SAC updates of the paper recipe (minibatch 128 swarm transitions), the
   captured update (``cudagraphs=true``) against the uncaptured one, solo and as populations of
   10 and 80, member-updates/s;
-* **loops**: the paper and fast recipes' whole training loops with ``cudagraphs=true``, solo and
+* **loops**: the paper and fast recipes' whole training loops with ``cudagraphs=true`` (``--compile``:
+  the loops' ``compile``, default ``false``), solo and
   populations of 10 and 80, each in a child process: member-updates/s of the loop, its split,
   the set-up time outside the loop and the peak GPU memory;
 * **projection**: the wall time of the paper's study (8 policies x 10 seeds x 816k updates, as
@@ -100,38 +101,60 @@ def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str
     return lines
 
 
-def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80)) -> list[str]:
-    """Every GPU row, and the GPU's projection line."""
+def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_timeout: float | None = None,
+              print_each: bool = False, compile: str = "false") -> list[str]:
+    """Every GPU row, and the GPU's projection line (each line printed as it is measured with
+    ``print_each``); a loop row that does not finish within ``row_timeout`` seconds says so.
+    ``compile``: the loops' ``compile`` (``false``: what finished within a minute on an H200;
+    with ``true``, ``step`` for populations, no row finished 1000 frames within 60 s there,
+    compilation included)."""
     from benchmarks.throughput import env_rows, format_rows
 
-    rows = env_rows((65536,), steps=4, repeat=2, device=device)
-    lines = [f"GPU: {torch.cuda.get_device_name(device)}, torch {torch.__version__}",
-             *format_rows(rows).splitlines()[1:], *update_lines(device)]
+    lines: list[str] = []
+
+    def say(*new: str) -> None:
+        lines.extend(new)
+        if print_each:
+            print(*new, sep="\n", flush=True)
+
+    say(f"GPU: {torch.cuda.get_device_name(device)}, torch {torch.__version__}")
+    say(*update_lines(device))
     rates: dict[tuple[str, int], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in ("paper", "fast"):
             n = frames if recipe == "paper" else max(frames, 4096)
             for k in (1, *members):
-                r = row_in_child(recipe, k, n, "false", Path(tmp), device, "true")
+                # A population's vmapped update is not compiled (captured as a whole): at most its step.
+                mode = "step" if compile == "true" and k > 1 else compile
+                r = row_in_child(recipe, k, n, mode, Path(tmp), device, "true", row_timeout)
+                if r is None:
+                    say(f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true compile={mode}: did not finish {n} "
+                        f"frames within {row_timeout:.0f} s")
+                    continue
                 rates[recipe, k] = r["member_updates_per_s"]
                 split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
-                lines.append(f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true: {r['member_updates_per_s']:9.0f} "
-                             f"member-updates/s ({r['updates']} updates in {r['loop_s']:.1f} s; {split}); set-up "
-                             f"{r['setup_s']:.1f} s; peak GPU memory {r['gpu_peak_mb']:.0f} MB")
-    lines.append(projection_line("GPU", rates["paper", members[0]], rates["fast", members[0]], members[0]))
+                say(f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true compile={mode}: "
+                    f"{r['member_updates_per_s']:9.0f} "
+                    f"member-updates/s ({r['updates']} updates in {r['loop_s']:.1f} s; {split}); set-up "
+                    f"{r['setup_s']:.1f} s; peak GPU memory {r['gpu_peak_mb']:.0f} MB")
+    if ("paper", members[0]) in rates and ("fast", members[0]) in rates:
+        say(projection_line("GPU", rates["paper", members[0]], rates["fast", members[0]], members[0]))
+    rows = env_rows((65536,), steps=4, repeat=2, device=device)
+    say(*format_rows(rows).splitlines()[1:])
     return lines
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=3000)
+    parser.add_argument("--row-timeout", type=float, default=None, help="seconds a loop row may take")
+    parser.add_argument("--compile", default="false", choices=("false", "true", "step"), help="the loops' compile")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if not torch.cuda.is_available():
         print("benchmarks.gpu: no CUDA device here (torch.cuda.is_available() is False)", file=sys.stderr)
         sys.exit(2)
-    for line in gpu_lines(frames=args.frames):
-        print(line, flush=True)
+    gpu_lines(frames=args.frames, row_timeout=args.row_timeout, print_each=True, compile=args.compile)
 
 
 if __name__ == "__main__":

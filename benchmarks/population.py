@@ -103,10 +103,14 @@ def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, 
 
 
 def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str,
-                 cudagraphs: str = "false") -> dict:
-    """:func:`run_row` in a fresh Python process (its peak memory is its own)."""
-    done = subprocess.run([sys.executable, __file__, "--row", recipe, str(members), str(frames), compile, str(folder),
-                           device, cudagraphs], capture_output=True, text=True)
+                 cudagraphs: str = "false", timeout: float | None = None) -> dict | None:
+    """:func:`run_row` in a fresh Python process (its peak memory is its own); ``None`` if it
+    did not finish within ``timeout`` seconds."""
+    try:
+        done = subprocess.run([sys.executable, __file__, "--row", recipe, str(members), str(frames), compile,
+                               str(folder), device, cudagraphs], capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return None
     if done.returncode:
         raise RuntimeError(f"benchmark row {recipe} x{members} failed:\n{done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])

@@ -23,8 +23,9 @@ from .paths import available
 from .scenario import ScenarioConfig
 
 RESUME_MODES = ("false", "true", "auto")
-# Members of one population (each holds its own networks, optimiser state and replay buffer).
-MAX_POPULATION = 64
+# Members of one population (each holds its own networks, optimiser state and replay buffer): a
+# GPU's populations of 80 fit, with room.
+MAX_POPULATION = 128
 # What `compile` may be: nothing, both, or one of the env's step and the learner's loss.
 COMPILE_MODES = ("false", "true", "step", "loss")
 # What the train app returns to a sweeper (Optuna, Ax): a metric of the run's final evaluation.

@@ -211,7 +211,9 @@ class SACLearner(_OffPolicy):
         )
         self.loss.set_keys(action=ACTION, state_action_value=("agents", "state_action_value"),
                            log_prob=LOG_PROB, **AGENT_KEYS)
-        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+        # The estimator's discount on the env's device: moved lazily inside the update, it would be a
+        # host-to-device copy that a CUDA graph cannot record (and a functional call would undo).
+        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma, device=env.device)
         self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
         self.actor_params = list(self.loss.actor_network_params.values(True, True))
         self.q_params = list(self.loss.qvalue_network_params.values(True, True))
@@ -258,7 +260,7 @@ class DDPGLearner(_OffPolicy):
         self.loss = DDPGLoss(actor_network=self.actor, value_network=self.qvalue, loss_function=cfg.loss_function,
                              delay_actor=True, delay_value=True)
         self.loss.set_keys(state_action_value=("agents", "state_action_value"), **AGENT_KEYS)
-        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma)
+        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma, device=env.device)
         self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
         self.actor_params = list(self.loss.actor_network_params.values(True, True))
         self.q_params = list(self.loss.value_network_params.values(True, True))
@@ -311,7 +313,7 @@ class PPOLearner:
         self.loss.set_keys(action=ACTION, sample_log_prob=LOG_PROB, value=("agents", "state_value"),
                            advantage=("agents", "advantage"), value_target=("agents", "value_target"),
                            **AGENT_KEYS)
-        self.loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
+        self.loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda, device=env.device)
         self.params = list(self.loss.parameters())
         self.optimizer = adam([{"params": self.params, "lr": cfg.lr}], env.device)
         self.loss_fn = compiled(self.loss, compile)

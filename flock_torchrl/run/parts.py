@@ -176,6 +176,10 @@ def restore_buffer(buffer: TensorDictReplayBuffer | None, payload: dict[str, Any
             return out
 
         state = {**state, "_storage": {**storage, "_storage": _rows(tensors, full)}}
+        storage, tensors = state["_storage"], state["_storage"]["_storage"]
+    device = buffer.storage.device
+    if isinstance(tensors, dict) and device != "auto":  # a checkpoint is read on the CPU: rows go to the storage's device
+        state = {**state, "_storage": {**storage, "_storage": _rows(tensors, lambda v: v.to(device))}}
     buffer.load_state_dict(state)
 
 

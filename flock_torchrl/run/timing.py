@@ -10,7 +10,8 @@ from typing import Any, Iterable, Iterator
 import torch
 
 # The parts of a training loop's wall time, in the order a time split is printed.
-# "compile": a compiled learner's first update in this process, where torch.compile works.
+# "compile": a compiled learner's first update and a compiled env's first step in this process,
+# where torch.compile works.
 _END = object()
 BUCKETS = ("env", "collection", "buffer", "sampling", "update", "compile", "logging", "evaluation", "checkpoints")
 

@@ -51,6 +51,7 @@ class Training:
         self.saved_frames = -1            # frames of the last checkpoint this process wrote
         self.start = time.perf_counter()
         self.progress: Progress | None = None
+        self.updated = False              # whether this process has run an update yet
 
     def _build(self, payload: dict | None) -> None:
         cfg, exp = self.cfg, self.cfg.experiment
@@ -109,11 +110,14 @@ class Training:
         """Collect, count, learn; log, evaluate and checkpoint when due; until the budget or a signal."""
         counters, split, exp = self.counters, self.split, self.cfg.experiment
         env_busy = sum(e.busy_seconds for e in self.envs)
+        env_compile = sum(e.compile_seconds for e in self.envs)
         try:
             for batches in split.timed(zip(*self.collectors), "collection"):
-                if exp.workers == 1:  # the env's own share of the collection
+                if exp.workers == 1:  # the env's own share of the collection, and its step's compilation
                     split.move(sum(e.busy_seconds for e in self.envs) - env_busy, "collection", "env")
+                    split.move(sum(e.compile_seconds for e in self.envs) - env_compile, "collection", "compile")
                     env_busy = sum(e.busy_seconds for e in self.envs)
+                    env_compile = sum(e.compile_seconds for e in self.envs)
                 stats = self._consume(batches)
                 with split.timer("logging"):
                     if schedule.log.due(counters["frames"]):
@@ -177,7 +181,8 @@ class Training:
 
     def _update_bucket(self) -> str:
         """Where an update's time goes: a compiled learner's first one in this process compiles."""
-        return "compile" if self.cfg.compile_loss and not self.split["compile"] else "update"
+        first, self.updated = not self.updated, True
+        return "compile" if self.cfg.compile_loss and first else "update"
 
     def _finished_episodes(self, batch: TensorDictBase) -> list[list[Any]]:
         """CSV rows for the episodes that ended in this batch (frames counted at batch end)."""

@@ -132,6 +132,7 @@ class FlockingEnv(EnvBase):
         self._sensed_once = False
         self._restored = False
         self.busy_seconds = 0.0  # wall time spent in reset and step (a trainer's time split reads it)
+        self.compile_seconds = 0.0  # the compiled step's first call, where torch.compile works (not in busy)
         if seed is not None:
             self.set_seed(seed)
 
@@ -327,7 +328,10 @@ class FlockingEnv(EnvBase):
         self.world = TensorDict._new_unsafe({**state, "sensed": sensed, "episode": episode},
                                             batch_size=self.batch_size, device=self.device)
         out = self._output(summary, reward)
-        self.busy_seconds += time.perf_counter() - start
+        if self.compile_step and not self.compile_seconds:
+            self.compile_seconds = time.perf_counter() - start
+        else:
+            self.busy_seconds += time.perf_counter() - start
         return out
 
     def _checked_action(self, tensordict: TensorDictBase) -> torch.Tensor:
