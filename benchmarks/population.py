@@ -148,6 +148,31 @@ def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int =
     return rates
 
 
+def evaluation_line(recipe: str, members: int, episodes: int = 1) -> str:
+    """A population's evaluation: its members' actors evaluated one after another (as
+    :func:`~flock_torchrl.run.rollout.evaluate` does for one) against together in one batched
+    rollout (:func:`~flock_torchrl.run.rollout.evaluate_members`, what a population runs), the
+    same episodes, in this process."""
+    import copy
+
+    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.run.rollout import evaluate, evaluate_members
+
+    cfg, env, _ = recipe_transitions(recipe)
+    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
+    actor = copy.deepcopy(learner.actor)
+    start = time.perf_counter()
+    for k in range(members):
+        actor.load_state_dict(learner.actor_state(k))
+        evaluate(actor, cfg.scenario, n_episodes=episodes, seed=cfg.eval_seed)
+    apart = time.perf_counter() - start
+    start = time.perf_counter()
+    evaluate_members(actor, learner.params.get("actor_network_params").detach(), cfg.scenario, episodes, cfg.eval_seed)
+    together = time.perf_counter() - start
+    return (f"population {recipe:5s} cpu  evaluation of {members} untrained members, {episodes} episode(s) each: one "
+            f"after another {apart:.1f} s, together {together:.1f} s ({apart / together:.1f}x)")
+
+
 def population_lines(frames: int = 3000, members: int = 10, recipes: str = "paper,fast",
                      print_each: bool = True, rates: dict | None = None) -> list[str]:
     """The rows of every recipe, each line printed as soon as it is measured; ``rates``, if
@@ -194,6 +219,8 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                             f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; the update alone "
                             f"{in_update:.0f} member-updates/s, {in_update * mflop / 1000:.1f} GFLOP/s; {memory})")
                     say(line)
+            if recipe == "paper":
+                say(evaluation_line(recipe, members))
     return lines
 
 

@@ -446,3 +446,26 @@ def test_scaling_names_the_member_of_a_population_it_flies(population_run, tmp_p
                      sizes=[3], episodes=1)
     rows = scaling(cfg, tmp_path, log=lambda _: None)
     assert rows[-1]["policy"] == "Policy1-G [tiny, seed 4, member=0 of a population]"
+
+
+def test_members_evaluated_together_fly_the_episodes_each_would_fly_alone():
+    """evaluate_members (a population's evaluation: K actors, one batched rollout) gives each
+    member the episodes evaluate() gives it alone: the same starts, the same outcomes, metrics to
+    the batched actor's round-off."""
+    from flock_torchrl.run.rollout import evaluate, evaluate_members
+
+    env, cfg, _ = transitions()
+    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1, 2])
+    params = learner.params.get("actor_network_params").detach()
+    actor = copy.deepcopy(learner.actor)
+    together = evaluate_members(actor, params, "s1", n_episodes=6, seed=11)
+    assert len(together) == 3
+    for k, result in enumerate(together):
+        actor.load_state_dict(learner.actor_state(k))
+        alone = evaluate(actor, "s1", n_episodes=6, seed=11)
+        for key in ("success", "safe_success", "reached", "crashed", "steps"):
+            assert torch.equal(result.episodes[key], alone.episodes[key]), (k, key)
+        for key in ("return", "d_min_uav", "d_c"):
+            torch.testing.assert_close(result.episodes[key], alone.episodes[key], rtol=1e-4, atol=1e-4)
+    # Members that differ fly differently: the batch is not one member's episodes three times.
+    assert not torch.equal(together[0].episodes["return"], together[1].episodes["return"])

@@ -189,6 +189,11 @@ def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float
 
     result = evaluate(actor, scenario=cfg.scenario, n_episodes=cfg.experiment.eval_episodes, seed=cfg.eval_seed,
                       device=cfg.device)
+    return result_row(result, frames)
+
+
+def result_row(result: Any, frames: int) -> dict[str, float]:
+    """An evaluation's row of a run's log: the protocol's summary, its success and return, at ``frames``."""
     row = {k: float(v) for k, v in result.summary().items()}
     row["success"], row["safe_success"] = row["success_rate"], row["safe_success_rate"]
     row["return"] = float(result.episodes["return"].double().mean())

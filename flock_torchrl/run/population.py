@@ -42,7 +42,8 @@ from .run_folder import EpisodeLog
 from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, AgentwiseDone, episode_rows, per_uav
 from .setup import checkpoint_meta
 from .signals import start_resource_tracker
-from .parts import evaluation_row, policy_capture, replay_buffer, restore_buffer, restore_rng
+from .parts import evaluation_row, policy_capture, replay_buffer, restore_buffer, restore_rng, result_row
+from .rollout import evaluate_members
 from .timing import TimeSplit, rates
 from .trainer import Training
 
@@ -199,7 +200,11 @@ class PopulationTraining(Training):
             self.progress.update(self.counters, log)
 
     def _evaluate(self) -> dict[str, float]:
-        """Evaluate every member that is not final (a final member's last evaluation stands)."""
+        """Evaluate every member that is not final (a final member's last evaluation stands):
+        the members still training in one batched rollout (:func:`~.rollout.evaluate_members`)
+        when there are several, a member alone as a solo run is evaluated."""
+        live = [k for k in range(self.k) if self.final[k] is None]
+        batched = self._evaluate_live(live) if len(live) > 1 else {}
         rows = []
         for k, seed in enumerate(self.seeds):
             final = self.final[k]
@@ -207,9 +212,11 @@ class PopulationTraining(Training):
                     self.member_evaluations[k][-1]["frames"] >= final["counters"]["frames"]:
                 rows.append(self.member_evaluations[k][-1])
                 continue
-            self._eval_actor.load_state_dict(final["actor"] if final is not None else self.learner.actor_state(k))
-            row = evaluation_row(self.cfg, self._eval_actor,
-                                 final["counters"]["frames"] if final is not None else self.counters["frames"])
+            row = batched.get(k)
+            if row is None:
+                self._eval_actor.load_state_dict(final["actor"] if final is not None else self.learner.actor_state(k))
+                row = evaluation_row(self.cfg, self._eval_actor,
+                                     final["counters"]["frames"] if final is not None else self.counters["frames"])
             self.member_evaluations[k].append(row)
             self._log({f"seed{seed}/eval/{key}": v for key, v in row.items() if key != "frames"})
             rows.append(row)
@@ -218,6 +225,13 @@ class PopulationTraining(Training):
         self.evaluations.append(summary)
         self._log({f"eval/{key}": v for key, v in summary.items() if key != "frames"})
         return summary
+
+    def _evaluate_live(self, live: list[int]) -> dict[int, dict[str, float]]:
+        """Rows of members ``live`` (still training), evaluated together on the run's episodes."""
+        params = self.learner.params.get("actor_network_params")[torch.tensor(live, device=self.learner.params.device)]
+        results = evaluate_members(self._eval_actor, params.detach(), self.cfg.scenario,
+                                   self.cfg.experiment.eval_episodes, self.cfg.eval_seed, self.cfg.device)
+        return {k: result_row(result, self.counters["frames"]) for k, result in zip(live, results)}
 
     # ---------------------------------------------------------------- checkpoints
     def _state(self) -> dict[str, Any]:

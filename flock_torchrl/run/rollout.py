@@ -25,7 +25,7 @@ import time
 from typing import Any, Callable, Mapping, Sequence
 
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ..config import ConfigError, ScenarioConfig, eval_seed, scenario_config
@@ -230,6 +230,67 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
         wall_time_s=time.perf_counter() - start, source=handle.source)
 
 
+def evaluate_members(actor: torch.nn.Module, params: TensorDictBase, scenario: str | ScenarioConfig | Mapping[str, Any],
+                     n_episodes: int, seed: int | None = None, device: str | torch.device = "cpu"
+                     ) -> list[EvaluationResult]:
+    """K actors of one architecture (``actor``'s, with member k's weights ``params[k]``, the
+    layout of ``TensorDict.from_module(actor)`` stacked ``[K]``) on the same ``n_episodes``
+    seeded episodes, in one batched rollout of ``K * n_episodes`` worlds: what a population's
+    evaluation runs, instead of K rollouts one after another.
+
+    The env is :func:`evaluate_handle`'s, reset once; its worlds are copied K times
+    (:meth:`FlockingEnv.subset`), so every member starts from the layouts :func:`evaluate` gives
+    it. The batch keeps one block per member: a world that finishes keeps stepping (its metrics
+    are read at its first ``done``; the env's per-step action checks, which refuse that, are off)
+    until that layout has finished for every member, and then leaves the batch. The trajectories
+    are :func:`evaluate`'s up to the float round-off of the batched actor (vmapped over members)
+    and, where a scenario draws per step (S4's noise), other draws."""
+    from ..policies.population import PopulationPolicy
+
+    start = time.perf_counter()
+    k = int(params.batch_size[0])
+    seed = eval_seed() if seed is None else seed
+    handle = resolve(actor, device=str(device))[0]
+    one = policy_env(handle, scenario, None, n_episodes, seed, device)
+    limit = one.cfg.max_steps
+    policy = PopulationPolicy(actor, params, k)
+    members = torch.arange(k, device=one.device).unsqueeze(-1)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = one.reset()
+        records = td["episode"].clone().unsqueeze(0).expand(k, n_episodes).clone()      # [K, E]
+        layouts = torch.arange(n_episodes, device=one.device)                           # still in the batch
+        rows = layouts.repeat(k)                                                        # world m * E + e: layout e
+        env, td = one.subset(rows), td[rows]
+        env.check_actions = False
+        finished = torch.zeros(k, n_episodes, dtype=torch.bool, device=one.device)      # [K, layouts]
+        steps = 0
+        while layouts.numel():
+            if steps >= limit:
+                raise RuntimeError(f"{int((~finished).sum())} episodes still running after {steps} steps; "
+                                   f"the env should truncate at max_steps={limit}")
+            td = env.step(policy(td))["next"]
+            steps += 1
+            done = td["done"].reshape(k, -1) & ~finished
+            if bool(done.any()):
+                where = torch.zeros(k, n_episodes, dtype=torch.bool, device=one.device)
+                where[:, layouts] = done
+                records[where] = td["episode"].reshape(k, -1)[done]
+                finished |= done
+                gone = finished.all(0)
+                if bool(gone.any()):
+                    keep = (~gone).nonzero().squeeze(-1)
+                    if not keep.numel():
+                        break
+                    rows = (members * layouts.numel() + keep).reshape(-1)
+                    env, td, finished, layouts = env.subset(rows), td[rows], finished[:, keep], layouts[keep]
+    records = records.cpu()
+    wall = time.perf_counter() - start
+    return [EvaluationResult(policy=f"{handle.name} member {m}", scenario=env.cfg.name, reading=env.cfg.reading,
+                             seed=seed, episodes={key: records[m][key].clone() for key in METRIC_KEYS},
+                             rollout_steps=steps, wall_time_s=wall / k, source=handle.source)
+            for m in range(k)]
+
+
 def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = None, seed: int | None = None,
                     device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
                     checkpoints_dir: str | os.PathLike | None = None) -> tuple[TensorDict, FlockingEnv]:
@@ -248,4 +309,5 @@ def rollout_episode(policy: Any, scenario: str = "train", reading: str | None = 
     return rollout.cpu(), env
 
 
-__all__ = ["CheckedContender", "evaluate", "try_contender", "evaluate_handle", "policy_env", "rollout_episode", "run_episodes"]
+__all__ = ["CheckedContender", "evaluate", "try_contender", "evaluate_handle", "evaluate_members", "policy_env",
+           "rollout_episode", "run_episodes"]
