@@ -235,8 +235,10 @@ tune-baselines: $(STAMP)
 # Throughput ratios against baselines run in the same process (VmasEnv needs the bench extra);
 # benchmarks/ is a tool of the repository, not of the installed package. ARGS: e.g. quick=true.
 # Three dimensions (docs/specification.md section 11). train-3d: Policy3-G and its no-instinct twin
-# Policy2-G trained on train3d (experiment=fast; SAC's target entropy -3, the paper's -|A| for three
-# action numbers), seeds THREED_SEEDS, into runs/threed/ (about 6 min a run on one core here).
+# Policy2-G trained on train3d (experiment=fast; SAC's target entropy -|A| = -3 by default), seeds
+# THREED_SEEDS, into runs/threed/ (about 6 min a run on one core here). Runs trained while this target
+# passed algo.target_entropy=-3.0 (the same value) are named seed<k>__algo.target_entropy--3.0__scenario-train3d;
+# ship-threed ships those too, but a new train-3d trains its own seed<k>__scenario-train3d beside them.
 # table3-3d: each of those seeds and the two baselines on train3d, forest3d and wall3d,
 # THREED_EPISODES episodes each (scripts/evaluate.py), into outputs/threed/<reading>/, then their
 # table in the form of Table III, outputs/threed/<reading>/table3_3d.md, and one seeded episode of
@@ -248,7 +250,7 @@ THREED_OUT ?= outputs/threed/$(CHECK_READING)
 THREED_SCENARIOS := train3d forest3d wall3d
 train-3d: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast scenario=train3d \
-		algo.target_entropy=-3.0 progress=false resume=auto seed=$(THREED_SEEDS) policy=policy3_g,policy2_g \
+		progress=false resume=auto seed=$(THREED_SEEDS) policy=policy3_g,policy2_g \
 		reading=$(CHECK_READING) hydra.sweep.dir=$(THREED_RUNS)
 
 table3-3d: $(STAMP)

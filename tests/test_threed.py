@@ -375,8 +375,24 @@ def test_the_3d_benchmark_rows_run():
 
 
 # ---------------------------------------------------------------------------- learning in space, through the apps
-TINY_3D = ("experiment=tiny", "scenario=train3d", "algo.target_entropy=-3.0", "experiment.max_frames=64",
+TINY_3D = ("experiment=tiny", "scenario=train3d", "experiment.max_frames=64",
            "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false")
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    ((), -2.0), (("scenario=forest",), -2.0), (("experiment=mixed",), -2.0), (("scenario=train3d",), -3.0),
+    (("scenario=wall3d", "policy=policy2_g"), -3.0), (("scenario=train3d", "algo.target_entropy=-1.5"), -1.5)])
+def test_sac_target_entropy_is_minus_the_action_dimension(overrides, expected):
+    """Table I's H-bar = -2 is -|A| in the plane; in space the action has three numbers (section 11)."""
+    from flock_torchrl.config import compose
+    from flock_torchrl.config.learners import sac_target_entropy
+
+    cfg = compose("train", list(overrides))
+    value = cfg.algo.target_entropy
+    assert value == expected and isinstance(value, float)
+    # The 2-D value is the same float as Table I's literal -2.0 of every run trained before.
+    assert (sac_target_entropy(2), sac_target_entropy(3)) == (-2.0, -3.0)
+    assert str(sac_target_entropy(2)) == "-2.0"
 
 
 def test_policy3_g_trains_in_space_through_the_train_app(tmp_path):
@@ -389,6 +405,7 @@ def test_policy3_g_trains_in_space_through_the_train_app(tmp_path):
     run_script("train.py", *TINY_3D, f"hydra.run.dir={run}", cwd=tmp_path)
     policy = load_policy(run / "last.pt")
     assert policy.dims == 3 and policy.flock_meta["scenario"]["dims"] == 3
+    assert "target_entropy: -3.0" in (run / "config.yaml").read_text()   # -|A| without an override
     env = Env("wall3d", num_envs=2, seed=0, reading=policy.flock_meta["reading"], policy_id="policy3_g")
     td = env.rollout(5, policy=policy)
     assert td["agents", "action"].shape[-1] == 3
