@@ -14,7 +14,7 @@ EPISODES ?= 500
 .PHONY: install test test-all demo readme-demo docs train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
         reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-tables publish-paper-recipe \
         publish-scaling publish-claims tune-baselines \
-        benchmark scaling train-3d table3-3d clean
+        benchmark scaling train-3d ship-threed table3-3d publish-threed clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -252,6 +252,11 @@ train-3d: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast scenario=train3d \
 		progress=false resume=auto seed=$(THREED_SEEDS) policy=policy3_g,policy2_g \
 		reading=$(CHECK_READING) hydra.sweep.dir=$(THREED_RUNS)
+
+# ship-threed: the named step that updates checkpoints/<reading>/threed/: the slim policies of the
+# finished runs of train-3d (THREED_RUNS), <policy>/seed<k>.pt, with their MANIFEST.md (conf/ship.yaml).
+ship-threed: $(STAMP)
+	$(PYTHON) scripts/ship.py reading=$(CHECK_READING) only=threed scenario_collections.threed.runs_dir=$(THREED_RUNS)
 
 table3-3d: $(STAMP)
 	set -e; for ckpt in $(THREED_RUNS)/fast/$(CHECK_READING)/*/seed*/last.pt; do \

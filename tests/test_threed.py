@@ -459,3 +459,55 @@ def test_episode_gifs_of_a_3d_scenario(tmp_path):
     (gif,) = episode_gifs(tmp_path, "policy_op", ("wall3d",), size=(100, 200), stride=100)
     frames = imageio.mimread(gif)
     assert gif.name == "wall3d_policy_op.gif" and len(frames) >= 2 and frames[0].shape[:2] == (100, 200)
+
+
+# ---------------------------------------------------------------------------- shipping and publishing the 3-D runs
+@pytest.fixture(scope="module")
+def tiny_3d_run(tmp_path_factory):
+    """One finished tiny Policy3-G run on train3d, trained through the train app."""
+    from helpers import run_script
+
+    tmp = tmp_path_factory.mktemp("run3d")
+    run_script("train.py", *TINY_3D, f"hydra.run.dir={tmp / 'run'}", cwd=tmp)
+    return tmp / "run"
+
+
+def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3d_run, tmp_path):
+    import shutil
+
+    from helpers import run_script
+
+    from flock_torchrl import load_policy
+
+    runs, ckpts = tmp_path / "runs" / "threed", tmp_path / "checkpoints"
+    folder = runs / "tiny" / "paper_fit" / "policy3_g"
+    for name in ("seed0__scenario-train3d", "seed1__algo.target_entropy--3.0__scenario-train3d",
+                 "seed2", "seed3__algo.lr_actor-0.1__scenario-train3d"):   # the last two are not the collection's
+        shutil.copytree(tiny_3d_run, folder / name)
+    (ckpts / "paper_fit" / "policy3_g").mkdir(parents=True)
+    (ckpts / "paper_fit" / "policy3_g" / "seed0.pt").write_bytes(b"a 2-D checkpoint, left alone")
+    args = ("reading=paper_fit", "only=threed", f"scenario_collections.threed.runs_dir={runs}",
+            "scenario_collections.threed.experiment=tiny", f"checkpoints_dir={ckpts}")
+    run_script("ship.py", *args, cwd=tmp_path)
+    dest = ckpts / "paper_fit" / "threed"
+    assert sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*.pt")) == ["policy3_g/seed0.pt",
+                                                                                 "policy3_g/seed1.pt"]
+    assert load_policy(dest / "policy3_g" / "seed1.pt").dims == 3
+    manifest = (dest / "MANIFEST.md").read_text()
+    assert manifest.count("| Policy3-G | ") == 2 and "| Policy3-G | 1 | tiny |" in manifest
+    assert (ckpts / "paper_fit" / "policy3_g" / "seed0.pt").read_bytes() == b"a 2-D checkpoint, left alone"
+    assert sorted(p.name for p in (ckpts / "paper_fit").iterdir()) == ["policy3_g", "threed"]
+    # Both names of one seed: a conflict, one line, exit 2, nothing rewritten.
+    shutil.copytree(tiny_3d_run, folder / "seed0__algo.target_entropy--3.0__scenario-train3d")
+    before = {p: p.stat().st_mtime_ns for p in dest.rglob("*")}
+    proc = run_script("ship.py", *args, cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "both hold policy3_g seed0" in proc.stderr, proc.stderr
+    assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
+
+
+def test_ship_refuses_an_unknown_collection(tmp_path):
+    from helpers import run_script
+
+    proc = run_script("ship.py", "reading=paper_fit", "only=fourd", f"checkpoints_dir={tmp_path}", cwd=tmp_path,
+                      check=False)
+    assert proc.returncode != 0 and "only" in proc.stderr and "threed" in proc.stderr, proc.stderr

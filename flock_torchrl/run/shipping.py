@@ -10,29 +10,34 @@ from __future__ import annotations
 import re
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Callable
+from typing import Callable, Sequence
 
 from ..io import write_text
 from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint, slim_payload
 from .schedule import Schedule
 
 
-# A solo run's folder, or a population's (``population=K``: seeds seed .. seed + K - 1).
-_SOLO = re.compile(r"seed(\d+)")
-_POPULATION = re.compile(r"seed(\d+)__population-(\d+)")
+def _folder_patterns(names: Sequence[str] = ()) -> tuple[re.Pattern, re.Pattern]:
+    """A solo run's folder, or a population's (``population=K``: seeds seed .. seed + K - 1):
+    ``seed<k>`` with no override in its name, or, given ``names``, ``seed<k>__<name>`` for one of them
+    (``seed<k>__population-<K>__<name>``)."""
+    tail = "__(?:" + "|".join(map(re.escape, names)) + ")" if names else ""
+    return re.compile(rf"seed(\d+){tail}"), re.compile(rf"seed(\d+)__population-(\d+){tail}")
 
 
 Run = tuple[Path, str, str, "int | None", dict]  # (last.pt, policy, seed<k>, member, slim payload)
 
 
-def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Run]:
+def _finished_runs(root: Path, log: Callable[[str], None] = print, names: Sequence[str] = ()) -> list[Run]:
     """``(last.pt, policy, seed<k>, member, slim policy)`` of every finished run under ``<root>/<policy>/``:
     a solo run ``seed<k>/`` (``member`` None) and each member of a population
-    ``seed<s>__population-<K>/``; runs with other overrides are not shipped. A run still
-    training, or stopped early, is skipped with a message."""
+    ``seed<s>__population-<K>/`` (each followed by ``__<name>`` for one of ``names``, when given);
+    runs with other overrides are not shipped. A run still training, or stopped early, is skipped
+    with a message."""
+    solo_name, population_name = _folder_patterns(names)
     runs = []
     for last in sorted(root.glob(f"*/seed*/{LAST}")):
-        solo, population = _SOLO.fullmatch(last.parent.name), _POPULATION.fullmatch(last.parent.name)
+        solo, population = solo_name.fullmatch(last.parent.name), population_name.fullmatch(last.parent.name)
         if not (solo or population):
             continue
         payload = load_checkpoint(last, kind="training")
@@ -42,7 +47,7 @@ def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Run]:
             continue
         policy = last.parent.parent.name
         if solo:
-            runs.append((last, policy, last.parent.name, None, slim_payload(payload, last)))
+            runs.append((last, policy, f"seed{solo.group(1)}", None, slim_payload(payload, last)))
         else:
             runs += [(last, policy, f"seed{m['seed']}", k, slim_payload(payload, last, k))
                      for k, m in enumerate(payload["members"])]
@@ -115,6 +120,19 @@ def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source
     return shipped
 
 
+def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, names: Sequence[str], dest: Path,
+                             log: Callable[[str], None] = print) -> list[Path]:
+    """Export the finished runs ``<runs_dir>/<experiment>/<reading>/<policy>/seed<k>__<name>/last.pt``
+    (``name`` one of ``names``: the scenario's overrides, e.g. ``scenario-train3d``) to
+    ``<dest>/<policy>/seed<k>.pt`` with its ``MANIFEST.md``; two folders holding one policy's seed
+    are a conflict (:class:`CheckpointError`), found before the first file is written."""
+    source = runs_dir / experiment / reading
+    plan, conflicts = plan_collection(_finished_runs(source, log, names), dest, reading)
+    if conflicts:
+        raise CheckpointError(refusal(conflicts))
+    return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log)
+
+
 def refusal(conflicts: list[str]) -> str:
     """One line: every conflict, and that nothing was written."""
     return (f"nothing was shipped, {len(conflicts)} conflict(s): " + "; ".join(conflicts)
@@ -148,4 +166,4 @@ def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_
     return shipped
 
 
-__all__ = ["plan_collection", "ship_checkpoints", "ship_collection"]
+__all__ = ["plan_collection", "ship_checkpoints", "ship_collection", "ship_scenario_collection"]
