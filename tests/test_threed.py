@@ -495,6 +495,7 @@ def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3
     assert load_policy(dest / "policy3_g" / "seed1.pt").dims == 3
     manifest = (dest / "MANIFEST.md").read_text()
     assert manifest.count("| Policy3-G | ") == 2 and "| Policy3-G | 1 | tiny |" in manifest
+    assert "`make ship-threed` (scripts/ship.py only=threed)" in manifest
     assert (ckpts / "paper_fit" / "policy3_g" / "seed0.pt").read_bytes() == b"a 2-D checkpoint, left alone"
     assert sorted(p.name for p in (ckpts / "paper_fit").iterdir()) == ["policy3_g", "threed"]
     # Both names of one seed: a conflict, one line, exit 2, nothing rewritten.

@@ -80,7 +80,8 @@ def plan_collection(runs: list[Run], dest: Path, reading: str) -> tuple[Shipment
 
 
 def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source: str,
-                    log: Callable[[str], None] = print) -> list[Path]:
+                    log: Callable[[str], None] = print,
+                    made_by: str = "`make ship-checkpoints` (scripts/ship.py)") -> list[Path]:
     """Write the slim policies of a :func:`plan_collection` plan (found free of conflicts) to
     ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat layout, ``<dest>/<policy>_seed<k>.pt``,
     move to their place) and ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
@@ -105,7 +106,7 @@ def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source
     if not held:
         return shipped
     lines = [f"# {title}, reading `{reading}`", "",
-             f"Slim policies exported by `make ship-checkpoints` (scripts/ship.py) from `{source}`; "
+             f"Slim policies exported by {made_by} from `{source}`; "
              "`flock_torchrl.load_policy(path)` loads them. Minutes are the run's own training time.", "",
              "| policy | seed | experiment | frames | episodes | updates | minutes | final eval success | safe_success |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -130,7 +131,8 @@ def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, name
     plan, conflicts = plan_collection(_finished_runs(source, log, names), dest, reading)
     if conflicts:
         raise CheckpointError(refusal(conflicts))
-    return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log)
+    return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log,
+                           made_by=f"`make ship-{dest.name}` (scripts/ship.py only={dest.name})")
 
 
 def refusal(conflicts: list[str]) -> str:
