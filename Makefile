@@ -58,6 +58,7 @@ docs: $(STAMP)
 	$(PYTHON) -m flock_torchrl.report.standing results results/standing.md
 	$(PYTHON) -m flock_torchrl.report.splice docs/results.md README.md
 	$(PYTHON) -m flock_torchrl.report.splice docs/scaling.md docs/scaling_tables.md
+	$(PYTHON) -m flock_torchrl.report.splice docs/threed.md
 
 train: $(STAMP)
 	$(PYTHON) scripts/train.py $(R_ARG) $(ARGS)
@@ -270,6 +271,25 @@ table3-3d: $(STAMP)
 	$(PYTHON) -c "import glob; from flock_torchrl.report.threed import episode_gifs; \
 		seeds = sorted(glob.glob('$(THREED_RUNS)/fast/$(CHECK_READING)/policy3_g/seed*/last.pt'))[:1]; \
 		[print(p) for x in ['policy_op', *seeds] for p in episode_gifs('$(THREED_OUT)', x, reading='$(CHECK_READING)')]"
+
+# publish-threed: the named step that writes the 3-D results (docs/specification.md section 11) from
+# checkpoints/<reading>/threed/ (make ship-threed): every shipped seed of Policy3-G and Policy2-G and the
+# baselines Policy-MA and Policy-OP on train3d, forest3d and wall3d, EPISODES each, with the verdicts, into
+# results/<reading>/table3_3d.{md,csv} and table3_3d_seeds.csv; one episode of Policy-OP and of Policy3-G's
+# first seed on each as a GIF and a frame on wall3d, figures/<reading>/threed_*; Policy3-G's seeds and the
+# baselines flown by 5-100 UAVs on train3d, THREED_SCALING_EPISODES episodes per size,
+# results/<reading>/scaling_train3d.{md,csv,png}; then make docs.
+THREED_SCALING_EPISODES ?= 200
+publish-threed: $(STAMP)
+	set -e; r=$(CHECK_READING); \
+	test -n "$$(ls checkpoints/$$r/threed/policy3_g/seed*.pt 2>/dev/null)" || \
+		{ echo "error: no checkpoints/$$r/threed/policy3_g/seed*.pt (make ship-threed)" >&2; exit 2; }; \
+	OMP_NUM_THREADS=1 $(PYTHON) -m flock_torchrl.report.threed results/$$r figures/$$r $$r $(EPISODES) \
+		checkpoints/$$r/threed/policy3_g/seed*.pt $$(ls checkpoints/$$r/threed/policy2_g/seed*.pt 2>/dev/null); \
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/scaling.py reading=$$r scenario=train3d episodes=$(THREED_SCALING_EPISODES) \
+		sizes=[5,10,20,50,100] policy_name=policy_ma hydra.run.dir=results/$$r \
+		"others=[$$(ls checkpoints/$$r/threed/policy3_g/seed*.pt | paste -sd, -),policy_op]"
+	$(MAKE) --no-print-directory docs
 
 benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"

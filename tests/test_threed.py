@@ -6,6 +6,7 @@ at elevation 0, flown with a zero third action, gives the 2-D scenario's traject
 termination and metrics bit for bit, and its observation and state with the elevation and climb
 entries inserted. Then hand-computed answers for the 3-D geometry, kinematics and instinct."""
 
+import functools
 import math
 
 import imageio.v2 as imageio
@@ -512,3 +513,47 @@ def test_ship_refuses_an_unknown_collection(tmp_path):
     proc = run_script("ship.py", "reading=paper_fit", "only=fourd", f"checkpoints_dir={tmp_path}", cwd=tmp_path,
                       check=False)
     assert proc.returncode != 0 and "only" in proc.stderr and "threed" in proc.stderr, proc.stderr
+
+
+def test_publish_threed_writes_the_table_verdicts_and_figures(tmp_path, monkeypatch):
+    """make publish-threed's writer on two episodes: the seeds' rows, the pooled table whose cells are
+    the seeds' means with scipy's bootstrap interval, section 11's verdicts, the GIFs and the frames."""
+    import csv
+
+    from flock_torchrl.report.seeds import summarise
+    from flock_torchrl.report.threed import main
+    from helpers import ROOT
+
+    shipped = ROOT / "checkpoints" / "paper_fit" / "threed"
+    seeds = [str(shipped / p / f"seed{k}.pt") for p in ("policy3_g", "policy2_g") for k in range(3)]
+    results, figures = tmp_path / "results", tmp_path / "figures"
+    from flock_torchrl.report import threed
+
+    # One scenario and small GIFs: the command line's own arguments otherwise.
+    monkeypatch.setattr(threed, "publish", functools.partial(threed.publish, scenarios=("wall3d",), gif_size=(60, 120),
+                                                             gif_stride=250))
+    main([str(results), str(figures), "paper_fit", "2", *seeds])
+    with (results / "table3_3d_seeds.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(r["policy"], r["checkpoint"].rsplit("/", 2)[-2:]) for r in rows][:1] == [("Policy3-G", ["policy3_g", "seed0.pt"])]
+    assert [r["policy"] for r in rows].count("Policy2-G") == 3 and rows[-1]["checkpoint"] == "baseline:policy_op"
+    assert {r["n_episodes"] for r in rows} == {"2"} and {r["scenario"] for r in rows} == {"wall3d"}
+    with (results / "table3_3d.csv").open() as handle:
+        pooled = {r["policy"]: r for r in csv.DictReader(handle)}
+    mine = [float(r["d_min_uav"]) for r in rows if r["policy"] == "Policy3-G"]
+    m = summarise(mine)
+    assert float(pooled["Policy3-G"]["d_min_uav"]) == pytest.approx(sum(mine) / 3)
+    assert (float(pooled["Policy3-G"]["d_min_uav_low"]), float(pooled["Policy3-G"]["d_min_uav_high"])) == \
+        pytest.approx((m.mean_low, m.mean_high))
+    assert pooled["Policy-MA"]["seeds"] == "1" and pooled["Policy-MA"]["d_min_uav_low"] == ""
+    text = (results / "table3_3d.md").read_text()
+    for other in ("Policy2-G", "Policy-MA", "Policy-OP"):
+        for metric in ("success_rate", "safe_success_rate", "d_min_uav"):
+            assert f"| wall3d | Policy3-G above {other} | {metric} | 3 / {3 if other == 'Policy2-G' else 1} |" in text
+    assert "make publish-threed" in text
+    brief = (results / "table3_3d_brief.md").read_text()
+    assert "| scenario | Policy3-G (3) | Policy2-G (3) | Policy-MA (1) | Policy-OP (1) | Policy3-G above" in brief
+    assert brief.count("| wall3d | ") == 1 and len(brief.splitlines()) == 5
+    names = sorted(p.name for p in figures.iterdir())
+    assert names == ["threed_wall3d_frames.png", "threed_wall3d_policy3_g.gif", "threed_wall3d_policy_op.gif"]
+    assert imageio.imread(figures / "threed_wall3d_frames.png").shape[:2] == (3 * 360, 720)
