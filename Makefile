@@ -278,7 +278,8 @@ table3-3d: $(STAMP)
 # results/<reading>/table3_3d.{md,csv} and table3_3d_seeds.csv; one episode of Policy-OP and of Policy3-G's
 # first seed on each as a GIF and a frame on wall3d, figures/<reading>/threed_*; Policy3-G's seeds and the
 # baselines flown by 5-100 UAVs on train3d, THREED_SCALING_EPISODES episodes per size,
-# results/<reading>/scaling_train3d.{md,csv,png}; then make docs.
+# results/<reading>/scaling_train3d.{md,csv,png}; then make docs. 929 s on one core here (paper_fit, five seeds
+# each, 500 episodes per seed and scenario, 200 per swarm size: about 6 min of table and figures, 10 of scaling).
 THREED_SCALING_EPISODES ?= 200
 publish-threed: $(STAMP)
 	set -e; r=$(CHECK_READING); \
