@@ -237,14 +237,14 @@ tune-baselines: $(STAMP)
 # benchmarks/ is a tool of the repository, not of the installed package. ARGS: e.g. quick=true.
 # Three dimensions (docs/specification.md section 11). train-3d: Policy3-G and its no-instinct twin
 # Policy2-G trained on train3d (experiment=fast; SAC's target entropy -|A| = -3 by default), seeds
-# THREED_SEEDS, into runs/threed/ (about 6 min a run on one core here). Runs trained while this target
+# THREED_SEEDS (the five shipped), into runs/threed/ (3-7 min a run on one core here, two at a time). Runs trained while this target
 # passed algo.target_entropy=-3.0 (the same value) are named seed<k>__algo.target_entropy--3.0__scenario-train3d;
 # ship-threed ships those too, but a new train-3d trains its own seed<k>__scenario-train3d beside them.
 # table3-3d: each of those seeds and the two baselines on train3d, forest3d and wall3d,
 # THREED_EPISODES episodes each (scripts/evaluate.py), into outputs/threed/<reading>/, then their
 # table in the form of Table III, outputs/threed/<reading>/table3_3d.md, and one seeded episode of
 # Policy-OP and of Policy3-G's first seed on each as a GIF of a top and a side view (flock_torchrl/report/threed.py).
-THREED_SEEDS ?= 0,1,2
+THREED_SEEDS ?= 0,1,2,3,4
 THREED_EPISODES ?= 500
 THREED_RUNS ?= runs/threed
 THREED_OUT ?= outputs/threed/$(CHECK_READING)
