@@ -14,7 +14,7 @@ EPISODES ?= 500
 .PHONY: install test test-all demo readme-demo docs train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
         reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-tables publish-paper-recipe \
         publish-scaling publish-claims tune-baselines \
-        benchmark scaling train-3d table3-3d clean
+        benchmark scaling train-3d ship-threed table3-3d publish-threed clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -58,6 +58,7 @@ docs: $(STAMP)
 	$(PYTHON) -m flock_torchrl.report.standing results results/standing.md
 	$(PYTHON) -m flock_torchrl.report.splice docs/results.md README.md
 	$(PYTHON) -m flock_torchrl.report.splice docs/scaling.md docs/scaling_tables.md
+	$(PYTHON) -m flock_torchrl.report.splice docs/threed.md
 
 train: $(STAMP)
 	$(PYTHON) scripts/train.py $(R_ARG) $(ARGS)
@@ -235,21 +236,28 @@ tune-baselines: $(STAMP)
 # Throughput ratios against baselines run in the same process (VmasEnv needs the bench extra);
 # benchmarks/ is a tool of the repository, not of the installed package. ARGS: e.g. quick=true.
 # Three dimensions (docs/specification.md section 11). train-3d: Policy3-G and its no-instinct twin
-# Policy2-G trained on train3d (experiment=fast; SAC's target entropy -3, the paper's -|A| for three
-# action numbers), seeds THREED_SEEDS, into runs/threed/ (about 6 min a run on one core here).
+# Policy2-G trained on train3d (experiment=fast; SAC's target entropy -|A| = -3 by default), seeds
+# THREED_SEEDS (the five shipped), into runs/threed/ (3-7 min a run on one core here, two at a time). Runs trained while this target
+# passed algo.target_entropy=-3.0 (the same value) are named seed<k>__algo.target_entropy--3.0__scenario-train3d;
+# ship-threed ships those too, but a new train-3d trains its own seed<k>__scenario-train3d beside them.
 # table3-3d: each of those seeds and the two baselines on train3d, forest3d and wall3d,
 # THREED_EPISODES episodes each (scripts/evaluate.py), into outputs/threed/<reading>/, then their
 # table in the form of Table III, outputs/threed/<reading>/table3_3d.md, and one seeded episode of
 # Policy-OP and of Policy3-G's first seed on each as a GIF of a top and a side view (flock_torchrl/report/threed.py).
-THREED_SEEDS ?= 0,1,2
+THREED_SEEDS ?= 0,1,2,3,4
 THREED_EPISODES ?= 500
 THREED_RUNS ?= runs/threed
 THREED_OUT ?= outputs/threed/$(CHECK_READING)
 THREED_SCENARIOS := train3d forest3d wall3d
 train-3d: $(STAMP)
 	OMP_NUM_THREADS=1 $(PYTHON) scripts/train.py -m hydra/launcher=local experiment=fast scenario=train3d \
-		algo.target_entropy=-3.0 progress=false resume=auto seed=$(THREED_SEEDS) policy=policy3_g,policy2_g \
+		progress=false resume=auto seed=$(THREED_SEEDS) policy=policy3_g,policy2_g \
 		reading=$(CHECK_READING) hydra.sweep.dir=$(THREED_RUNS)
+
+# ship-threed: the named step that updates checkpoints/<reading>/threed/: the slim policies of the
+# finished runs of train-3d (THREED_RUNS), <policy>/seed<k>.pt, with their MANIFEST.md (conf/ship.yaml).
+ship-threed: $(STAMP)
+	$(PYTHON) scripts/ship.py reading=$(CHECK_READING) only=threed scenario_collections.threed.runs_dir=$(THREED_RUNS)
 
 table3-3d: $(STAMP)
 	set -e; for ckpt in $(THREED_RUNS)/fast/$(CHECK_READING)/*/seed*/last.pt; do \
@@ -263,6 +271,26 @@ table3-3d: $(STAMP)
 	$(PYTHON) -c "import glob; from flock_torchrl.report.threed import episode_gifs; \
 		seeds = sorted(glob.glob('$(THREED_RUNS)/fast/$(CHECK_READING)/policy3_g/seed*/last.pt'))[:1]; \
 		[print(p) for x in ['policy_op', *seeds] for p in episode_gifs('$(THREED_OUT)', x, reading='$(CHECK_READING)')]"
+
+# publish-threed: the named step that writes the 3-D results (docs/specification.md section 11) from
+# checkpoints/<reading>/threed/ (make ship-threed): every shipped seed of Policy3-G and Policy2-G and the
+# baselines Policy-MA and Policy-OP on train3d, forest3d and wall3d, EPISODES each, with the verdicts, into
+# results/<reading>/table3_3d.{md,csv} and table3_3d_seeds.csv; one episode of Policy-OP and of Policy3-G's
+# first seed on each as a GIF and a frame on wall3d, figures/<reading>/threed_*; Policy3-G's seeds and the
+# baselines flown by 5-100 UAVs on train3d, THREED_SCALING_EPISODES episodes per size,
+# results/<reading>/scaling_train3d.{md,csv,png}; then make docs. 929 s on one core here (paper_fit, five seeds
+# each, 500 episodes per seed and scenario, 200 per swarm size: about 6 min of table and figures, 10 of scaling).
+THREED_SCALING_EPISODES ?= 200
+publish-threed: $(STAMP)
+	set -e; r=$(CHECK_READING); \
+	test -n "$$(ls checkpoints/$$r/threed/policy3_g/seed*.pt 2>/dev/null)" || \
+		{ echo "error: no checkpoints/$$r/threed/policy3_g/seed*.pt (make ship-threed)" >&2; exit 2; }; \
+	OMP_NUM_THREADS=1 $(PYTHON) -m flock_torchrl.report.threed results/$$r figures/$$r $$r $(EPISODES) \
+		checkpoints/$$r/threed/policy3_g/seed*.pt $$(ls checkpoints/$$r/threed/policy2_g/seed*.pt 2>/dev/null); \
+	OMP_NUM_THREADS=1 $(PYTHON) scripts/scaling.py reading=$$r scenario=train3d episodes=$(THREED_SCALING_EPISODES) \
+		sizes=[5,10,20,50,100] policy_name=policy_ma hydra.run.dir=results/$$r \
+		"others=[$$(ls checkpoints/$$r/threed/policy3_g/seed*.pt | paste -sd, -),policy_op]"
+	$(MAKE) --no-print-directory docs
 
 benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"

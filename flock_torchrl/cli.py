@@ -180,8 +180,10 @@ def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
 
 # -- ship, tune
 def _prepare_ship(cfg: ShipConfig, out: Path) -> None:
-    if not Path(cfg.runs_dir).is_dir():
-        raise ConfigError("runs_dir", f"{cfg.runs_dir} is not a folder of runs")
+    key, runs_dir = ((f"scenario_collections.{cfg.only}.runs_dir", cfg.scenario_collections[cfg.only]["runs_dir"])
+                     if cfg.only is not None else ("runs_dir", cfg.runs_dir))
+    if not Path(runs_dir).is_dir():
+        raise ConfigError(key, f"{runs_dir} is not a folder of runs")
 
 
 def _ship_folders(cfg: ShipConfig) -> list[Path]:
@@ -190,8 +192,17 @@ def _ship_folders(cfg: ShipConfig) -> list[Path]:
 
 
 def _run_ship(cfg: ShipConfig, out: Path) -> None:
-    from .run.shipping import ship_checkpoints
+    from .run.shipping import ship_checkpoints, ship_scenario_collection
 
+    if cfg.only is not None:   # one collection of another scenario's runs, alone
+        spec = cfg.scenario_collections[cfg.only]
+        source = Path(spec["runs_dir"]) / spec["experiment"] / cfg.scenario.reading
+        if not source.is_dir():
+            _say(f"nothing to ship under {source}")
+            return
+        ship_scenario_collection(cfg.scenario.reading, Path(spec["runs_dir"]), spec["experiment"], list(spec["names"]),
+                                 Path(cfg.checkpoints_dir) / cfg.scenario.reading / cfg.only, log=_say)
+        return
     folders = _ship_folders(cfg)
     if not any(f.is_dir() for f in folders):  # nothing trained under this reading: say so
         _say(f"nothing to ship under {', '.join(map(str, folders))}")

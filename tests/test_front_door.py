@@ -132,13 +132,17 @@ def test_moved_sections_live_in_docs():
 def test_quoted_blocks_equal_the_files_that_write_them():
     from flock_torchrl.report.splice import blocks, stale_blocks
 
-    for doc in (README, *(ROOT / "docs" / name for name in ("results.md", "scaling.md", "scaling_tables.md"))):
+    for doc in (README, *(ROOT / "docs" / name for name in ("results.md", "scaling.md", "scaling_tables.md",
+                                                             "threed.md"))):
         assert blocks(doc.read_text()), f"{doc.name} has no spliced block"
         assert stale_blocks(doc, ROOT) == [], f"{doc.name}: run `make docs` / `make readme-demo`"
     quoted = [p for p, _, _ in blocks((ROOT / "docs" / "results.md").read_text())]
     assert {"results/paper_fit/summary.md", "results/literal/summary.md"} <= set(quoted)
     assert [p for p, _, _ in blocks(README.read_text())] == ["results/standing.md", "docs/demo.md",
-                                                            "results/paper_fit/claims_overview.md"]
+                                                            "results/paper_fit/claims_overview.md",
+                                                            "results/paper_fit/table3_3d_brief.md"]
+    assert [p for p, _, _ in blocks((ROOT / "docs" / "threed.md").read_text())] == [
+        "results/paper_fit/table3_3d.md", "results/paper_fit/scaling_train3d.md"]
 
 
 def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_path):
@@ -162,11 +166,12 @@ def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_pa
 
 def test_publish_targets_refresh_the_docs_copies():
     makefile = (ROOT / "Makefile").read_text()
-    for target in ("publish", "publish-paper-recipe", "publish-scaling"):
+    for target in ("publish", "publish-paper-recipe", "publish-scaling", "publish-threed"):
         body = makefile.split(f"\n{target}:", 1)[1].split("\n\n", 1)[0]
         assert "$(MAKE) --no-print-directory docs" in body, target
     docs = makefile.split("\ndocs:", 1)[1].split("\n\n", 1)[0]
     assert "flock_torchrl.report.splice docs/results.md README.md" in docs
+    assert "flock_torchrl.report.splice docs/threed.md" in docs
     demo = makefile.split("\nreadme-demo:", 1)[1].split("\n\n", 1)[0]
     assert "experiment=demo" in demo and "--demo" in demo and "splice README.md" in demo
     assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile

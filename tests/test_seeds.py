@@ -172,3 +172,23 @@ def test_claims_overview_sets_the_paper_beside_each_recipe(tmp_path):
                      r"\(3 seeds\) \| not published \|$", tangential), tangential
     critic = next(line for line in table.splitlines() if "critic" in line)
     assert "no comparison (policies not trained)" in critic
+
+
+def test_a_fixed_baseline_score_is_compared_over_the_learned_seeds_alone():
+    """Section 11: a deterministic baseline's one score is a constant; P(X > y) is the fraction of X's
+    seeds above it (ties half) and both intervals resample X's seeds."""
+    from flock_torchrl.report.seeds import compare_fixed
+
+    c = compare_fixed("X", "MA", [0.9, 1.0, 1.0, 1.0, 0.95], 0.8, "success_rate")
+    # Every seed above 0.8: P = 1 in every resample; mean 0.97, so the difference is 0.17 and a
+    # resample's mean lies between the lowest and highest seed: [0.1, 0.2] less 0.8's offset.
+    assert (c.probability, c.low, c.high) == (1.0, 1.0, 1.0)
+    assert c.difference == pytest.approx(0.17) and 0.1 - 1e-12 <= c.difference_low <= c.difference_high <= 0.2 + 1e-12
+    assert c.verdict == "holds"
+    # Two seeds above 1.5 m, two below, one tied: P = (2 + 0.5) / 5; the mean 1.42 m.
+    c = compare_fixed("X", "OP", [1.0, 1.2, 1.5, 1.6, 1.8], 1.5, "d_min_uav")
+    assert c.probability == pytest.approx(0.5) and c.difference == pytest.approx(-0.08)
+    assert c.verdict == "not distinguishable"
+    assert compare_fixed("X", "OP", [0.2, 0.3, 0.25], 0.9, "success_rate").verdict == "reversed"
+    assert compare_fixed("X", "OP", [1.0, 1.0, 1.0], 1.0, "success_rate").verdict == "not distinguishable"
+    assert compare_fixed("X", "OP", [1.0, 1.0], 0.0, "success_rate").verdict == "too few seeds"

@@ -6,6 +6,7 @@ at elevation 0, flown with a zero third action, gives the 2-D scenario's traject
 termination and metrics bit for bit, and its observation and state with the elevation and climb
 entries inserted. Then hand-computed answers for the 3-D geometry, kinematics and instinct."""
 
+import functools
 import math
 
 import imageio.v2 as imageio
@@ -375,8 +376,24 @@ def test_the_3d_benchmark_rows_run():
 
 
 # ---------------------------------------------------------------------------- learning in space, through the apps
-TINY_3D = ("experiment=tiny", "scenario=train3d", "algo.target_entropy=-3.0", "experiment.max_frames=64",
+TINY_3D = ("experiment=tiny", "scenario=train3d", "experiment.max_frames=64",
            "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "scenario.max_steps=20", "progress=false")
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    ((), -2.0), (("scenario=forest",), -2.0), (("experiment=mixed",), -2.0), (("scenario=train3d",), -3.0),
+    (("scenario=wall3d", "policy=policy2_g"), -3.0), (("scenario=train3d", "algo.target_entropy=-1.5"), -1.5)])
+def test_sac_target_entropy_is_minus_the_action_dimension(overrides, expected):
+    """Table I's H-bar = -2 is -|A| in the plane; in space the action has three numbers (section 11)."""
+    from flock_torchrl.config import compose
+    from flock_torchrl.config.learners import sac_target_entropy
+
+    cfg = compose("train", list(overrides))
+    value = cfg.algo.target_entropy
+    assert value == expected and isinstance(value, float)
+    # The 2-D value is the same float as Table I's literal -2.0 of every run trained before.
+    assert (sac_target_entropy(2), sac_target_entropy(3)) == (-2.0, -3.0)
+    assert str(sac_target_entropy(2)) == "-2.0"
 
 
 def test_policy3_g_trains_in_space_through_the_train_app(tmp_path):
@@ -389,6 +406,7 @@ def test_policy3_g_trains_in_space_through_the_train_app(tmp_path):
     run_script("train.py", *TINY_3D, f"hydra.run.dir={run}", cwd=tmp_path)
     policy = load_policy(run / "last.pt")
     assert policy.dims == 3 and policy.flock_meta["scenario"]["dims"] == 3
+    assert "target_entropy: -3.0" in (run / "config.yaml").read_text()   # -|A| without an override
     env = Env("wall3d", num_envs=2, seed=0, reading=policy.flock_meta["reading"], policy_id="policy3_g")
     td = env.rollout(5, policy=policy)
     assert td["agents", "action"].shape[-1] == 3
@@ -442,3 +460,100 @@ def test_episode_gifs_of_a_3d_scenario(tmp_path):
     (gif,) = episode_gifs(tmp_path, "policy_op", ("wall3d",), size=(100, 200), stride=100)
     frames = imageio.mimread(gif)
     assert gif.name == "wall3d_policy_op.gif" and len(frames) >= 2 and frames[0].shape[:2] == (100, 200)
+
+
+# ---------------------------------------------------------------------------- shipping and publishing the 3-D runs
+@pytest.fixture(scope="module")
+def tiny_3d_run(tmp_path_factory):
+    """One finished tiny Policy3-G run on train3d, trained through the train app."""
+    from helpers import run_script
+
+    tmp = tmp_path_factory.mktemp("run3d")
+    run_script("train.py", *TINY_3D, f"hydra.run.dir={tmp / 'run'}", cwd=tmp)
+    return tmp / "run"
+
+
+def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3d_run, tmp_path):
+    import shutil
+
+    from helpers import run_script
+
+    from flock_torchrl import load_policy
+
+    runs, ckpts = tmp_path / "runs" / "threed", tmp_path / "checkpoints"
+    folder = runs / "tiny" / "paper_fit" / "policy3_g"
+    for name in ("seed0__scenario-train3d", "seed1__algo.target_entropy--3.0__scenario-train3d",
+                 "seed2", "seed3__algo.lr_actor-0.1__scenario-train3d"):   # the last two are not the collection's
+        shutil.copytree(tiny_3d_run, folder / name)
+    (ckpts / "paper_fit" / "policy3_g").mkdir(parents=True)
+    (ckpts / "paper_fit" / "policy3_g" / "seed0.pt").write_bytes(b"a 2-D checkpoint, left alone")
+    args = ("reading=paper_fit", "only=threed", f"scenario_collections.threed.runs_dir={runs}",
+            "scenario_collections.threed.experiment=tiny", f"checkpoints_dir={ckpts}")
+    run_script("ship.py", *args, cwd=tmp_path)
+    dest = ckpts / "paper_fit" / "threed"
+    assert sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*.pt")) == ["policy3_g/seed0.pt",
+                                                                                 "policy3_g/seed1.pt"]
+    assert load_policy(dest / "policy3_g" / "seed1.pt").dims == 3
+    manifest = (dest / "MANIFEST.md").read_text()
+    assert manifest.count("| Policy3-G | ") == 2 and "| Policy3-G | 1 | tiny |" in manifest
+    assert "`make ship-threed` (scripts/ship.py only=threed)" in manifest
+    assert (ckpts / "paper_fit" / "policy3_g" / "seed0.pt").read_bytes() == b"a 2-D checkpoint, left alone"
+    assert sorted(p.name for p in (ckpts / "paper_fit").iterdir()) == ["policy3_g", "threed"]
+    # Both names of one seed: a conflict, one line, exit 2, nothing rewritten.
+    shutil.copytree(tiny_3d_run, folder / "seed0__algo.target_entropy--3.0__scenario-train3d")
+    before = {p: p.stat().st_mtime_ns for p in dest.rglob("*")}
+    proc = run_script("ship.py", *args, cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "both hold policy3_g seed0" in proc.stderr, proc.stderr
+    assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
+
+
+def test_ship_refuses_an_unknown_collection(tmp_path):
+    from helpers import run_script
+
+    proc = run_script("ship.py", "reading=paper_fit", "only=fourd", f"checkpoints_dir={tmp_path}", cwd=tmp_path,
+                      check=False)
+    assert proc.returncode != 0 and "only" in proc.stderr and "threed" in proc.stderr, proc.stderr
+
+
+def test_publish_threed_writes_the_table_verdicts_and_figures(tmp_path, monkeypatch):
+    """make publish-threed's writer on two episodes: the seeds' rows, the pooled table whose cells are
+    the seeds' means with scipy's bootstrap interval, section 11's verdicts, the GIFs and the frames."""
+    import csv
+
+    from flock_torchrl.report.seeds import summarise
+    from flock_torchrl.report.threed import main
+    from helpers import ROOT
+
+    shipped = ROOT / "checkpoints" / "paper_fit" / "threed"
+    seeds = [str(shipped / p / f"seed{k}.pt") for p in ("policy3_g", "policy2_g") for k in range(3)]
+    results, figures = tmp_path / "results", tmp_path / "figures"
+    from flock_torchrl.report import threed
+
+    # One scenario and small GIFs: the command line's own arguments otherwise.
+    monkeypatch.setattr(threed, "publish", functools.partial(threed.publish, scenarios=("wall3d",), gif_size=(60, 120),
+                                                             gif_stride=250))
+    main([str(results), str(figures), "paper_fit", "2", *seeds])
+    with (results / "table3_3d_seeds.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [(r["policy"], r["checkpoint"].rsplit("/", 2)[-2:]) for r in rows][:1] == [("Policy3-G", ["policy3_g", "seed0.pt"])]
+    assert [r["policy"] for r in rows].count("Policy2-G") == 3 and rows[-1]["checkpoint"] == "baseline:policy_op"
+    assert {r["n_episodes"] for r in rows} == {"2"} and {r["scenario"] for r in rows} == {"wall3d"}
+    with (results / "table3_3d.csv").open() as handle:
+        pooled = {r["policy"]: r for r in csv.DictReader(handle)}
+    mine = [float(r["d_min_uav"]) for r in rows if r["policy"] == "Policy3-G"]
+    m = summarise(mine)
+    assert float(pooled["Policy3-G"]["d_min_uav"]) == pytest.approx(sum(mine) / 3)
+    assert (float(pooled["Policy3-G"]["d_min_uav_low"]), float(pooled["Policy3-G"]["d_min_uav_high"])) == \
+        pytest.approx((m.mean_low, m.mean_high))
+    assert pooled["Policy-MA"]["seeds"] == "1" and pooled["Policy-MA"]["d_min_uav_low"] == ""
+    text = (results / "table3_3d.md").read_text()
+    for other in ("Policy2-G", "Policy-MA", "Policy-OP"):
+        for metric in ("success_rate", "safe_success_rate", "d_min_uav"):
+            assert f"| wall3d | Policy3-G above {other} | {metric} | 3 / {3 if other == 'Policy2-G' else 1} |" in text
+    assert "make publish-threed" in text
+    brief = (results / "table3_3d_brief.md").read_text()
+    assert "| scenario | Policy3-G (3) | Policy2-G (3) | Policy-MA (1) | Policy-OP (1) | Policy3-G above" in brief
+    assert brief.count("| wall3d | ") == 1 and len(brief.splitlines()) == 5
+    names = sorted(p.name for p in figures.iterdir())
+    assert names == ["threed_wall3d_frames.png", "threed_wall3d_policy3_g.gif", "threed_wall3d_policy_op.gif"]
+    assert imageio.imread(figures / "threed_wall3d_frames.png").shape[:2] == (3 * 360, 720)

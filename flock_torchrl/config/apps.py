@@ -320,6 +320,10 @@ class ShipConfig(WorldApp):
     runs_dir: str = MISSING
     paper_experiment: str = MISSING
     collections: Dict[str, str] = field(default_factory=dict)  # experiment -> folder under <checkpoints>/<reading>/
+    # folder under <checkpoints>/<reading>/ -> {runs_dir, experiment, names}: runs of another scenario,
+    # whose folders are seed<k>__<one of names>; shipped alone, with ``only``
+    scenario_collections: Dict[str, Any] = field(default_factory=dict)
+    only: Optional[str] = None               # a key of scenario_collections: ship that one alone
 
     def checked_fields(self, p: str) -> dict[str, Any]:
         fields = dict(super().checked_fields(p))  # the run options, then the world
@@ -328,6 +332,16 @@ class ShipConfig(WorldApp):
         for experiment, folder in self.collections.items():
             folder_name(f"collections.{experiment}", experiment)
             folder_name(f"collections.{experiment}", folder)
+        for folder, spec in self.scenario_collections.items():
+            key = f"scenario_collections.{folder}"
+            folder_name(key, folder)
+            if not isinstance(spec, Mapping) or set(spec) != {"runs_dir", "experiment", "names"}:
+                reject(key, f"must hold runs_dir, experiment and names, got {spec!r}")
+            folder_name(f"{key}.experiment", spec["experiment"])
+            if not spec["names"] or any(not isinstance(n, str) or not n for n in spec["names"]):
+                reject(f"{key}.names", f"a list of run folders' names after seed<k>__, got {spec['names']!r}")
+        if self.only is not None and self.only not in self.scenario_collections:
+            reject("only", f"must be one of {sorted(self.scenario_collections)} or null, got {self.only!r}")
         return fields
 
 

@@ -28,7 +28,7 @@ from omegaconf.errors import OmegaConfBaseException
 from .apps import APP_SCHEMAS, EvaluateConfig, TrainConfig
 from .checks import ConfigError, Schema, config_error, safe_name
 from .groups import ExperimentConfig, LoggerConfig, PolicyConfig
-from .learners import ALGO_SCHEMAS
+from .learners import ALGO_SCHEMAS, sac_target_entropy
 from .names import config_folder, evaluated_name, run_name, selection_dir
 from .paths import CONF_DIR, shipped_checkpoints_dir
 from .scenario import SCENARIO_FIELDS, ScenarioConfig, check_booleans
@@ -37,6 +37,7 @@ from .scenario import SCENARIO_FIELDS, ScenarioConfig, check_booleans
 RESOLVERS = {
     "pi": lambda k=1.0: float(k) * math.pi,   # ``${pi:0.5}`` = 0.5 pi: angles written as the paper writes them
     "flock.run_name": run_name,
+    "flock.target_entropy": sac_target_entropy,   # ``${flock.target_entropy:${scenario.dims}}``: -|A|
     "flock.shipped_checkpoints": lambda: str(shipped_checkpoints_dir()),
     "flock.evaluated": lambda policy, contender=None: evaluated_name(policy, contender),
     "flock.selection": selection_dir,

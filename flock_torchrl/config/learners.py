@@ -33,6 +33,14 @@ class LearnerConfig(Schema):
         pass
 
 
+def sac_target_entropy(dims: Any) -> float:
+    """SAC's default target entropy, -|A| (Table I's H-bar = -2 for the plane's two action numbers, the
+    usual heuristic): the action has one number per dimension of the world, so -2 in the plane and -3 in
+    space (docs/specification.md section 11). ``conf/algo/sac.yaml`` reads it as
+    ``${flock.target_entropy:${scenario.dims}}``, resolved when the config is composed."""
+    return -float(dims)   # scenario.dims is checked (2 or 3) by the scenario's schema
+
+
 # Replay buffers are counted in UAV transitions; 1e9 is about 0.5 TB of swarm transitions.
 MAX_BUFFER = 10**9
 
@@ -139,4 +147,4 @@ def algo_config(node: Any, prefix: str = "algo") -> LearnerConfig:
     return ALGO_SCHEMAS[name].from_config(node, prefix)
 
 
-__all__ = ["ALGO_SCHEMAS", "DDPGConfig", "LearnerConfig", "MAX_BUFFER", "PPOConfig", "SACConfig", "algo_config"]
+__all__ = ["ALGO_SCHEMAS", "DDPGConfig", "LearnerConfig", "MAX_BUFFER", "PPOConfig", "SACConfig", "algo_config", "sac_target_entropy"]

@@ -158,6 +158,20 @@ def compare(better: str, worse: str, scores: Mapping[str, Sequence[float]], metr
                       float(mean_difference(x, y)), d_low, d_high)
 
 
+def compare_fixed(better: str, worse: str, scores: Sequence[float], value: float, metric: str) -> Comparison:
+    """``better``'s seeds above a fixed score ``value`` (a deterministic baseline flown on the same
+    episodes, docs/specification.md section 11): P(X > y) is the fraction of X's seeds above it (ties
+    half), and both intervals resample X's seeds alone; the verdict is :func:`verdict`'s, over X's seeds."""
+    x, y = np.asarray(scores, float), np.asarray([value], float)
+    probability = lambda s, axis: probability_of_improvement(s, y, axis=axis)  # noqa: E731
+    difference = lambda s, axis: np.mean(s, axis=axis) - value  # noqa: E731
+    low, high = _interval(probability, [x])
+    d_low, d_high = _interval(difference, [x])
+    return Comparison(better, worse, float(probability(x, -1)), low, high,
+                      verdict(low, high, len(x), d_low, d_high, smallest_difference(metric)),
+                      float(difference(x, -1)), d_low, d_high)
+
+
 def claim_verdict(comparisons: Sequence[Comparison]) -> str:
     """A claim of several comparisons: ``holds`` / ``reversed`` if all are, else the counts."""
     kinds = [c.verdict for c in comparisons]
@@ -360,6 +374,6 @@ if __name__ == "__main__":
 
 
 __all__ = ["SMALLEST_DIFFERENCE", "Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_overview",
-           "claims_table", "compare", "comparisons_of", "iqm", "mean_difference", "performance_profile",
+           "claims_table", "compare", "compare_fixed", "comparisons_of", "iqm", "mean_difference", "performance_profile",
            "plot_profiles", "probability_of_improvement", "read_seed_scores", "score_distribution",
            "smallest_difference", "summarise", "summary_table", "verdict", "write_claims", "write_overview"]

@@ -10,29 +10,34 @@ from __future__ import annotations
 import re
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Callable
+from typing import Callable, Sequence
 
 from ..io import write_text
 from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint, slim_payload
 from .schedule import Schedule
 
 
-# A solo run's folder, or a population's (``population=K``: seeds seed .. seed + K - 1).
-_SOLO = re.compile(r"seed(\d+)")
-_POPULATION = re.compile(r"seed(\d+)__population-(\d+)")
+def _folder_patterns(names: Sequence[str] = ()) -> tuple[re.Pattern, re.Pattern]:
+    """A solo run's folder, or a population's (``population=K``: seeds seed .. seed + K - 1):
+    ``seed<k>`` with no override in its name, or, given ``names``, ``seed<k>__<name>`` for one of them
+    (``seed<k>__population-<K>__<name>``)."""
+    tail = "__(?:" + "|".join(map(re.escape, names)) + ")" if names else ""
+    return re.compile(rf"seed(\d+){tail}"), re.compile(rf"seed(\d+)__population-(\d+){tail}")
 
 
 Run = tuple[Path, str, str, "int | None", dict]  # (last.pt, policy, seed<k>, member, slim payload)
 
 
-def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Run]:
+def _finished_runs(root: Path, log: Callable[[str], None] = print, names: Sequence[str] = ()) -> list[Run]:
     """``(last.pt, policy, seed<k>, member, slim policy)`` of every finished run under ``<root>/<policy>/``:
     a solo run ``seed<k>/`` (``member`` None) and each member of a population
-    ``seed<s>__population-<K>/``; runs with other overrides are not shipped. A run still
-    training, or stopped early, is skipped with a message."""
+    ``seed<s>__population-<K>/`` (each followed by ``__<name>`` for one of ``names``, when given);
+    runs with other overrides are not shipped. A run still training, or stopped early, is skipped
+    with a message."""
+    solo_name, population_name = _folder_patterns(names)
     runs = []
     for last in sorted(root.glob(f"*/seed*/{LAST}")):
-        solo, population = _SOLO.fullmatch(last.parent.name), _POPULATION.fullmatch(last.parent.name)
+        solo, population = solo_name.fullmatch(last.parent.name), population_name.fullmatch(last.parent.name)
         if not (solo or population):
             continue
         payload = load_checkpoint(last, kind="training")
@@ -42,7 +47,7 @@ def _finished_runs(root: Path, log: Callable[[str], None] = print) -> list[Run]:
             continue
         policy = last.parent.parent.name
         if solo:
-            runs.append((last, policy, last.parent.name, None, slim_payload(payload, last)))
+            runs.append((last, policy, f"seed{solo.group(1)}", None, slim_payload(payload, last)))
         else:
             runs += [(last, policy, f"seed{m['seed']}", k, slim_payload(payload, last, k))
                      for k, m in enumerate(payload["members"])]
@@ -75,7 +80,8 @@ def plan_collection(runs: list[Run], dest: Path, reading: str) -> tuple[Shipment
 
 
 def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source: str,
-                    log: Callable[[str], None] = print) -> list[Path]:
+                    log: Callable[[str], None] = print,
+                    made_by: str = "`make ship-checkpoints` (scripts/ship.py)") -> list[Path]:
     """Write the slim policies of a :func:`plan_collection` plan (found free of conflicts) to
     ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat layout, ``<dest>/<policy>_seed<k>.pt``,
     move to their place) and ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
@@ -100,7 +106,7 @@ def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source
     if not held:
         return shipped
     lines = [f"# {title}, reading `{reading}`", "",
-             f"Slim policies exported by `make ship-checkpoints` (scripts/ship.py) from `{source}`; "
+             f"Slim policies exported by {made_by} from `{source}`; "
              "`flock_torchrl.load_policy(path)` loads them. Minutes are the run's own training time.", "",
              "| policy | seed | experiment | frames | episodes | updates | minutes | final eval success | safe_success |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -113,6 +119,20 @@ def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source
     write_text(dest / "MANIFEST.md", "\n".join(lines) + "\n")
     log(f"wrote {dest / 'MANIFEST.md'} ({len(held)} checkpoints, {len(shipped)} exported now)")
     return shipped
+
+
+def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, names: Sequence[str], dest: Path,
+                             log: Callable[[str], None] = print) -> list[Path]:
+    """Export the finished runs ``<runs_dir>/<experiment>/<reading>/<policy>/seed<k>__<name>/last.pt``
+    (``name`` one of ``names``: the scenario's overrides, e.g. ``scenario-train3d``) to
+    ``<dest>/<policy>/seed<k>.pt`` with its ``MANIFEST.md``; two folders holding one policy's seed
+    are a conflict (:class:`CheckpointError`), found before the first file is written."""
+    source = runs_dir / experiment / reading
+    plan, conflicts = plan_collection(_finished_runs(source, log, names), dest, reading)
+    if conflicts:
+        raise CheckpointError(refusal(conflicts))
+    return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log,
+                           made_by=f"`make ship-{dest.name}` (scripts/ship.py only={dest.name})")
 
 
 def refusal(conflicts: list[str]) -> str:
@@ -148,4 +168,4 @@ def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_
     return shipped
 
 
-__all__ = ["plan_collection", "ship_checkpoints", "ship_collection"]
+__all__ = ["plan_collection", "ship_checkpoints", "ship_collection", "ship_scenario_collection"]

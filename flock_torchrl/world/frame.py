@@ -302,12 +302,16 @@ def draw_side(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float, 
 def frame_image(cfg: Any, state: WorldState, extent: tuple[float, float, float, float], height: int, width: int,
            show_fov: bool, title: str | None) -> np.ndarray:
     fig, canvas = _figure(height, width)
-    if state.altitude is not None:  # 3-D: top view (left) and side view (right)
-        ax = fig.add_axes((0, 0, 0.5, 1))
+    space = state.altitude is not None
+    if space:  # 3-D: top view (left, framed with its axes) and side view (right)
+        ax = fig.add_axes((0.07, 0.12, 0.42, 0.76))
         draw_side(fig.add_axes((0.58, 0.25, 0.4, 0.5)), cfg, state, extent)
     else:
         ax = fig.add_axes((0, 0, 1, 1))
     draw_world(ax, cfg, state, extent, show_fov=show_fov)
+    if space:
+        ax.set_axis_on()
+        style_axes(ax, extent, None, axes=True)
     if title:
         ax.text(0.02, 0.98, title, transform=ax.transAxes, ha="left", va="top", fontsize=8)
     return _to_rgb(canvas, height, width)
