@@ -75,10 +75,14 @@ def beam_unit_table(n_beams: int) -> tuple[list[float], list[float]]:
 
 def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     """Unit vectors of every beam, ``[..., n_beams, 2]`` for headings ``[...]``: the heading's
-    direction rotated by each beam's fixed offset (no trigonometry per beam)."""
+    direction rotated by each beam's fixed offset (no trigonometry per beam).
+
+    Stored component by component (``[..., n_beams, 0]`` contiguous over the beams): the ray
+    casts read each component along the beams, which compiled code then loads as whole vectors
+    rather than gathering every other float."""
     cos_o, sin_o = (torch.tensor(v, dtype=heading.dtype, device=heading.device) for v in beam_unit_table(n_beams))
     cos_h, sin_h = torch.cos(heading)[..., None], torch.sin(heading)[..., None]
-    return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), -1)
+    return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), 0).movedim(0, -1)
 
 
 def ring_tables(rings, n_beams: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
