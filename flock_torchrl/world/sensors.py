@@ -75,10 +75,14 @@ def beam_unit_table(n_beams: int) -> tuple[list[float], list[float]]:
 
 def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     """Unit vectors of every beam, ``[..., n_beams, 2]`` for headings ``[...]``: the heading's
-    direction rotated by each beam's fixed offset (no trigonometry per beam)."""
+    direction rotated by each beam's fixed offset (no trigonometry per beam).
+
+    Stored component by component (``[..., n_beams, 0]`` contiguous over the beams): the ray
+    casts read each component along the beams, which compiled code then loads as whole vectors
+    rather than gathering every other float."""
     cos_o, sin_o = (torch.tensor(v, dtype=heading.dtype, device=heading.device) for v in beam_unit_table(n_beams))
     cos_h, sin_h = torch.cos(heading)[..., None], torch.sin(heading)[..., None]
-    return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), -1)
+    return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), 0).movedim(0, -1)
 
 
 def ring_tables(rings, n_beams: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -357,16 +361,31 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     near = squared < (camera_range * (1 + 1e-6)) ** 2
     if static_shapes or 4 * int(near.sum()) > near.numel():  # dense: keep every pair where it is
         valid = ~torch.eye(n, dtype=torch.bool, device=dev).expand(b, n, n)
+        # Measured on rows of all N^2 pairs of a world, then viewed as [B, N, N]: the same values,
+        # and one innermost dimension long enough for compiled code to vectorise (N alone is small).
+        def rows(pairs: torch.Tensor) -> torch.Tensor:
+            return pairs.reshape(b, n * n)
+
+        def of_i(per_uav: torch.Tensor) -> torch.Tensor:  # per pair (i, j): UAV i's value
+            return rows(per_uav[..., :, None].expand(b, n, n))
+
+        def of_j(per_uav: torch.Tensor) -> torch.Tensor:  # per pair (i, j): UAV j's value
+            return rows(per_uav[..., None, :].expand(b, n, n))
+
+        others = valid[0].reshape(n * n)
         if climb is not None:
-            m = measure_pairs_3d(dx_all, dy_all, dz_all, heading[..., :, None], heading[..., None, :],
-                                 climb[..., :, None], climb[..., None, :])
-            visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
-            return (Neighbours(visible=visible, dx=dx_all, dy=dy_all, valid=valid, dz=dz_all, **m),
+            m = measure_pairs_3d(rows(dx_all), rows(dy_all), rows(dz_all), of_i(heading), of_j(heading), of_i(climb),
+                                 of_j(climb))
+            visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=others)
+            m = {key: value.view(b, n, n) for key, value in m.items()}
+            return (Neighbours(visible=visible.view(b, n, n), dx=dx_all, dy=dy_all, valid=valid, dz=dz_all, **m),
                     NearPairs(None, valid), closest)
         # Oneself at distance 0, as measured (never valid; S4 noise keeps it finite).
-        distance, rel_bearing, heading_difference = measure_pairs(dx_all, dy_all, heading[..., :, None],
-                                                                  heading[..., None, :])
-        visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
+        distance, rel_bearing, heading_difference = measure_pairs(rows(dx_all), rows(dy_all), of_i(heading),
+                                                                  of_j(heading))
+        visible = visibility(distance, rel_bearing, camera_range, half_fov, others=others)
+        distance, rel_bearing, heading_difference, visible = (t.view(b, n, n) for t in (
+            distance, rel_bearing, heading_difference, visible))
         return (Neighbours(distance, rel_bearing, heading_difference, visible, dx_all, dy_all, valid),
                 NearPairs(None, valid), closest)
     bi, ii, ji = near.nonzero(as_tuple=True)  # ordered by world, UAV, then j
