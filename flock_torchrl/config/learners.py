@@ -147,4 +147,5 @@ def algo_config(node: Any, prefix: str = "algo") -> LearnerConfig:
     return ALGO_SCHEMAS[name].from_config(node, prefix)
 
 
-__all__ = ["ALGO_SCHEMAS", "DDPGConfig", "LearnerConfig", "MAX_BUFFER", "PPOConfig", "SACConfig", "algo_config", "sac_target_entropy"]
+__all__ = ["ALGO_SCHEMAS", "DDPGConfig", "LearnerConfig", "MAX_BUFFER", "PPOConfig", "SACConfig", "algo_config",
+           "sac_target_entropy"]
