@@ -14,7 +14,7 @@ EPISODES ?= 500
 .PHONY: install test test-all demo readme-demo docs train train-all check-train-all train-paper train-paper-all train-paper-populations train-fast-populations train-mixed ship-checkpoints \
         reproduce-table3 reproduce-table4 reproduce-table5 reproduce-table3-paper figures publish publish-tables publish-paper-recipe \
         publish-scaling publish-claims tune-baselines \
-        benchmark scaling train-3d ship-threed table3-3d publish-threed clean
+        benchmark publish-benchmark scaling train-3d ship-threed table3-3d publish-threed clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -295,6 +295,13 @@ publish-threed: $(STAMP)
 benchmark: $(STAMP)
 	$(PYTHON) -m pip install --quiet -e ".[bench]"
 	OMP_NUM_THREADS=1 $(PYTHON) -m benchmarks.run $(ARGS)
+
+# The benchmark docs/throughput.md quotes: make benchmark into results/benchmark.md (its command, the
+# machine's fingerprint and load, the rows), then spliced into docs/throughput.md. ARGS as benchmark's.
+publish-benchmark: $(STAMP)
+	$(PYTHON) -m pip install --quiet -e ".[bench]"
+	OMP_NUM_THREADS=1 $(PYTHON) -m benchmarks.run $(ARGS) hydra.run.dir=results
+	$(PYTHON) -m flock_torchrl.report.splice docs/throughput.md
 
 # Policy3-G (trained with 5 UAVs), and the mixed-size one where shipped, flown by 5 to 100
 # UAVs, into outputs/scaling/<reading>/.

@@ -24,6 +24,7 @@ app on ``benchmarks/conf/benchmark.yaml`` whose config is :class:`BenchmarkConfi
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -322,6 +323,7 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     ``out_dir/benchmark.md``."""
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
+    load = os.getloadavg()[0]
     notes: list[str] = []
     text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device), notes=notes))
     text += "\n" + "\n".join(notes)
@@ -342,8 +344,19 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     text += "\n" + "\n".join(threed_lines(batch=64 if cfg.quick else 1024, rounds=1 if cfg.quick else 3,
                                            compiled=not cfg.quick, print_each=False))
     print(text, flush=True)
-    write_text(out_dir / "benchmark.md", "```\n" + text + "\n```\n")
+    write_text(out_dir / "benchmark.md", benchmark_page(text, bool(cfg.quick), int(cfg.threads or 0), load))
 
 
-__all__ = ["BenchmarkConfig", "CheckFirst", "PreviousSACUpdate", "Row", "benchmark_app", "checked", "env_rows",
-           "format_rows", "learner_rows", "loop_rows", "replay_batches", "run_all", "scale_rows"]
+def benchmark_page(text: str, quick: bool, threads: int, load: float) -> str:
+    """``benchmark.md``: a title, what ran where (the command, the machine's fingerprint and its
+    load when the run started), then the rows as printed."""
+    from flock_torchrl.report.splice import machine
+
+    command = "make benchmark" + (" ARGS=quick=true" if quick else "")
+    return (f"# Throughput, {command}\n\n`{command}` on {machine(threads or torch.get_num_threads())}; the machine's "
+            f"load average was {load:.1f} when it started (a loaded machine's absolute rates are lower; the ratios "
+            f"compare candidates measured in the same process).\n\n```\n{text}\n```\n")
+
+
+__all__ = ["BenchmarkConfig", "CheckFirst", "PreviousSACUpdate", "Row", "benchmark_app", "benchmark_page", "checked",
+           "env_rows", "format_rows", "learner_rows", "loop_rows", "replay_batches", "run_all", "scale_rows"]
