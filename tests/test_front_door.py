@@ -133,7 +133,7 @@ def test_quoted_blocks_equal_the_files_that_write_them():
     from flock_torchrl.report.splice import blocks, stale_blocks
 
     for doc in (README, *(ROOT / "docs" / name for name in ("results.md", "scaling.md", "scaling_tables.md",
-                                                             "threed.md"))):
+                                                             "threed.md", "throughput.md"))):
         assert blocks(doc.read_text()), f"{doc.name} has no spliced block"
         assert stale_blocks(doc, ROOT) == [], f"{doc.name}: run `make docs` / `make readme-demo`"
     quoted = [p for p, _, _ in blocks((ROOT / "docs" / "results.md").read_text())]
@@ -143,6 +143,7 @@ def test_quoted_blocks_equal_the_files_that_write_them():
                                                             "results/paper_fit/table3_3d_brief.md"]
     assert [p for p, _, _ in blocks((ROOT / "docs" / "threed.md").read_text())] == [
         "results/paper_fit/table3_3d.md", "results/paper_fit/scaling_train3d.md"]
+    assert [p for p, _, _ in blocks((ROOT / "docs" / "throughput.md").read_text())] == ["results/benchmark.md"]
 
 
 def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_path):
