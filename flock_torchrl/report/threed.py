@@ -252,8 +252,8 @@ def published_markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
              f"Learned policies: the mean over seeds of each seed's score with its {100 * CONFIDENCE:.0f} % percentile "
              f"bootstrap interval over seeds (scipy.stats.bootstrap, {RESAMPLES} resamples); a baseline has one "
              "score per scenario. Rates in %, distances in m, speeds in m/s, angles in rad, t^g in s over the "
-             "episodes that reached the goal. Each seed: `table3_3d_seeds.csv`. The rule: docs/specification.md "
-             "section 11.", "",
+             "episodes that reached the goal. Each seed: `table3_3d_seeds.csv`. The rule: "
+             "docs/specification.md section 11.", "",
              "| scenario | policy | seeds | episodes | " + " | ".join(LABELS) + " |",
              "|" + "---|" * (4 + len(LABELS))]
     for row in pooled:
