@@ -128,6 +128,14 @@ def try_contender(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping
                 break
 
 
+def _within_limit(running: int, steps: int, limit: int) -> None:
+    """An evaluation's guard: ``running`` episodes left after ``steps`` steps means the env did
+    not truncate at ``max_steps``."""
+    if steps >= limit:
+        raise RuntimeError(f"{running} episodes still running after {steps} steps; "
+                           f"the env should truncate at max_steps={limit}")
+
+
 def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
                  label: str = "episodes", log: Callable[[str], None] | None = None,
                  every: float = 5.0) -> tuple[TensorDict, int]:
@@ -157,9 +165,7 @@ def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
         rows = torch.arange(env.num_envs, device=env.device)  # original world index of each batch row
         steps = 0
         while rows.numel():
-            if steps >= limit:
-                raise RuntimeError(f"{rows.numel()} episodes still running after {steps} steps; "
-                                   f"the env should truncate at max_steps={limit}")
+            _within_limit(rows.numel(), steps, limit)
             td = env.step(policy(td))["next"]
             steps += 1
             done = td["done"].reshape(-1)
@@ -265,9 +271,7 @@ def evaluate_members(actor: torch.nn.Module, params: TensorDictBase, scenario: s
         finished = torch.zeros(k, n_episodes, dtype=torch.bool, device=one.device)      # [K, layouts]
         steps = 0
         while layouts.numel():
-            if steps >= limit:
-                raise RuntimeError(f"{int((~finished).sum())} episodes still running after {steps} steps; "
-                                   f"the env should truncate at max_steps={limit}")
+            _within_limit(int((~finished).sum()), steps, limit)
             td = env.step(policy(td))["next"]
             steps += 1
             done = td["done"].reshape(k, -1) & ~finished
