@@ -134,6 +134,9 @@ def env_rows(batches=(64, 1024, 4096), steps: int = 20, repeat: int = 3, device:
             if name in best:
                 rows.append(Row(f"env steps, B={b}, N=5 ({name} vs VmasEnv flocking)", b * n / best[name], base,
                                 "env-steps/s", note))
+        if "compiled" in best:
+            rows.append(Row(f"env steps, B={b}, N=5 (compiled vs eager)", b * n / best["compiled"],
+                            b * n / best["eager"], "env-steps/s"))
     return rows
 
 

@@ -378,3 +378,89 @@ def test_actor_camera_all_round_by_hand(make_env, place):
     assert torch.equal(seen["all_round"][0], seen["all_round"][1])  # the critic's slot, without noise
     assert torch.equal(seen["paper"][1], seen["all_round"][1])      # the critic's state is untouched
     assert seen["paper"][2] == seen["all_round"][2] == [False, True]  # UAV 1 sees UAV 0 ahead, 1.5 m
+
+
+# ---------------------------------------------------------------- the compiled step's layout
+def test_smallest_along_the_worlds_innermost_layout_takes_what_the_last_dimension_takes():
+    from flock_torchrl.world.sensors import pick, smallest
+
+    # By hand: beams 30 (1 m), then 2 and 5 (3 m each: the lower index first), as along the last dimension.
+    beams = torch.full((1, 1, 36), 10.0)
+    beams[0, 0, 5], beams[0, 0, 2], beams[0, 0, 30] = 3.0, 3.0, 1.0
+    dist, idx = shortest_beams(beams.permute(2, 1, 0).contiguous().permute(2, 1, 0), 3, worlds_last=True)
+    assert idx[0, 0].tolist() == [30, 2, 5] and dist[0, 0].tolist() == [1.0, 3.0, 3.0]
+    # Many rows with ties and values past the last finite one (inf).
+    g = torch.Generator().manual_seed(0)
+    values = torch.randint(0, 6, (7, 4, 9), generator=g).float()
+    values[values == 5] = math.inf
+    for k in (1, 3, 9):
+        last = smallest(values, k)
+        first = smallest(values.permute(2, 1, 0), k, 0)
+        assert torch.equal(last[0], first[0].permute(2, 1, 0))
+        finite = torch.isfinite(last[0])  # past the finite entries the index is arbitrary
+        assert torch.equal(last[1][finite], first[1].permute(2, 1, 0)[finite])
+        assert torch.equal(pick(values.permute(2, 1, 0), first[1])[torch.isfinite(first[0])],
+                           first[0][torch.isfinite(first[0])])
+
+
+def test_laser_of_the_compiled_step_casts_what_eager_casting_casts():
+    from flock_torchrl.world.geometry import cast_rays_along, cast_rays_worlds_last
+    from flock_torchrl.world.sensors import beam_directions, worlds_last
+
+    # 64 worlds of 5 UAVs among 3 circles and 2 rectangles each, some UAVs inside an obstacle,
+    # some on a rectangle's edge (integer coordinates), some beams grazing.
+    g = torch.Generator().manual_seed(2)
+    b, n = 64, 5
+    position = torch.rand(b, n, 2, generator=g) * 30
+    position[:8] = position[:8].round()
+    heading = (torch.rand(b, n, generator=g) * 2 - 1) * PI
+    heading[:4] = 0.0
+    circles = torch.cat((torch.rand(b, 3, 2, generator=g) * 30, 1 + 3 * torch.rand(b, 3, 1, generator=g)), -1)
+    rects = torch.cat((torch.rand(b, 2, 2, generator=g) * 30, 2 + 6 * torch.rand(b, 2, 2, generator=g)), -1)
+    rects[:8] = rects[:8].round()
+    rects[:, :, 2:] = rects[:, :, 2:].clamp_min(1.0)
+    obstacles = Obstacles(circles, rects)
+    eager = cast_rays_along(position, beam_directions(heading, 36), obstacles, 10.0)
+    directions = beam_directions(heading, 36).permute(3, 2, 1, 0)  # [2, K, N, B]
+    lanes = cast_rays_worlds_last(worlds_last(position[..., 0]), worlds_last(position[..., 1]), directions[0],
+                                  directions[1], obstacles, 10.0)
+    assert torch.equal(eager[1], lanes[1].permute(2, 1, 0))
+    assert torch.allclose(eager[0], lanes[0].permute(2, 1, 0), atol=1e-5, rtol=0)
+    assert (eager[0] < 10).float().mean() > 0.2 and (eager[0] == 0).any()  # hits, and UAVs inside
+    static = laser_scan(position, heading, obstacles, 36, 10.0, static_shapes=True)
+    assert torch.equal(static[1], eager[1]) and torch.allclose(static[0], eager[0], atol=1e-5, rtol=0)
+    none = laser_scan(position, heading, no_obstacles(), 36, 10.0, static_shapes=True)
+    assert none[0].shape == (b, n, 36) and (none[0] == 10.0).all() and (none[1] == -1).all()
+
+
+def test_pairs_of_the_compiled_step_sense_what_all_pairs_sense():
+    from flock_torchrl.world.instinct import instinct_command
+    from flock_torchrl.world.sensors import near_neighbours
+
+    g = torch.Generator().manual_seed(3)
+    position = torch.rand(16, 6, 2, generator=g) * 8
+    position[0, 1] = position[0, 0] + torch.tensor([2.0, 0.0])  # a distance tie seen by UAV 0
+    position[0, 2] = position[0, 0] + torch.tensor([0.0, 2.0])
+    heading = (torch.rand(16, 6, generator=g) * 2 - 1) * PI
+    heading[0, 0] = PI / 4
+    dense, pairs, closest = near_neighbours(position, heading, 5.0, FOV / 2, static_shapes=True)
+    lanes, lane_pairs, lane_closest = near_neighbours(position, heading, 5.0, FOV / 2, static_shapes=True,
+                                                      worlds_last=True)
+    assert lanes.pair_dim == 0 and lanes.distance.shape == (6, 6, 16)
+    assert torch.equal(lane_closest, closest)
+    assert torch.equal(lanes.visible.permute(2, 1, 0), dense.visible)
+    assert torch.equal(lanes.nearest_distance(), dense.nearest_distance())
+    assert torch.equal(camera_observation(lanes, 3, 5.0), camera_observation(dense, 3, 5.0))
+    wide = visibility(lanes.distance, lanes.bearing, 5.0, PI, lane_pairs.valid)
+    assert torch.equal(camera_observation(lanes.with_visibility(wide), 3, 5.0),
+                       camera_observation(dense.with_visibility(visibility(dense.distance, dense.bearing, 5.0, PI,
+                                                                          pairs.valid)), 3, 5.0))
+    beams, goal = torch.full((16, 6, 36), 10.0), torch.tensor([[40.0, 40.0]] * 16)
+    beams[:, :, 7] = 1.5  # the wall's push as well
+    for tangential in (True, False):
+        a = instinct_command(position, heading, goal, beams, dense, gain=1.0, r0=5.0, safe_distance=2.0,
+                             tangential=tangential)
+        b = instinct_command(position, heading, goal, beams, lanes, gain=1.0, r0=5.0, safe_distance=2.0,
+                             tangential=tangential)
+        assert torch.equal(a[0], b[0]) and torch.allclose(a[1], b[1], atol=1e-5, rtol=0)
+        assert a[0].any() and a[1].abs().sum() > 0

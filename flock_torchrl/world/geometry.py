@@ -26,6 +26,16 @@ _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 
 
+def stored(x: torch.Tensor) -> torch.Tensor:
+    """``x`` itself, held in memory of its own by compiled code (eagerly a view of the same
+    strides, nothing changes). Compiled code otherwise computes an elementwise result inside
+    every loop that reads it; where such a loop also reads a per-world value (the goal, the
+    swarm's mean heading) it runs one UAV at a time, five to a world, and its ``atan2``, ``sin``
+    or ``fmod`` go scalar. Stored, ``x`` is computed by a loop of its own, vectorised along all
+    UAVs of all worlds."""
+    return x.as_strided(x.shape, x.stride())
+
+
 def wrap(angle: torch.Tensor) -> torch.Tensor:
     """Map angles to ``[-pi, pi)`` (specification, "Conventions")."""
     wrapped = torch.remainder(angle + _PI, _TWO_PI) - _PI
@@ -55,7 +65,8 @@ def length(vec: torch.Tensor) -> torch.Tensor:
 
 def circular_mean(angles: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
     """``atan2(sum sin, sum cos)`` along ``dim`` (docs/specification.md section 2, erratum to Eq. 18)."""
-    return torch.atan2(torch.sin(angles).sum(dim, keepdim=keepdim), torch.cos(angles).sum(dim, keepdim=keepdim))
+    return torch.atan2(stored(torch.sin(angles)).sum(dim, keepdim=keepdim),
+                       stored(torch.cos(angles)).sum(dim, keepdim=keepdim))
 
 
 @dataclass
@@ -103,12 +114,21 @@ def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Te
 
     Returns:
         ``[..., K]``: the smallest ``t >= 0`` with ``origin + t direction`` on the circle, 0 when
-        the origin is inside (or on) the circle, ``inf`` for a miss.
+        the origin is inside (or on) the circle, ``inf`` for a miss (:func:`ray_circle_hit`).
     """
     centre, radius = circles[..., :2], circles[..., 2]
     f = origin - centre
-    b = (f * direction).sum(-1)
     c = (f * f).sum(-1) - radius * radius
+    return ray_circle_hit(f[..., 0], f[..., 1], direction[..., 0], direction[..., 1], c)
+
+
+def ray_circle_hit(fx: torch.Tensor, fy: torch.Tensor, dx: torch.Tensor, dy: torch.Tensor, c: torch.Tensor
+                   ) -> torch.Tensor:
+    """The ray-circle hit on components, the one home of its formula: rays from origins at
+    ``(fx, fy)`` from the centre along unit ``(dx, dy)``, ``c = |f|^2 - r^2``; all broadcast, in
+    any layout (the compiled step's keeps the worlds innermost). The smallest ``t >= 0`` on the
+    circle, 0 inside (or on) it, ``inf`` for a miss."""
+    b = fx * dx + fy * dy
     disc = b * b - c
     t_near = -b - torch.sqrt(disc.clamp_min(0.0))
     hit = (disc >= 0) & (t_near >= 0)
@@ -117,26 +137,37 @@ def _ray_circle(origin: torch.Tensor, direction: torch.Tensor, circles: torch.Te
 
 
 def _ray_rectangle(origin: torch.Tensor, direction: torch.Tensor, rects: torch.Tensor) -> torch.Tensor:
-    """Distance along unit rays to axis-aligned rectangles (slab test).
+    """Distance along unit rays to axis-aligned rectangles (slab test, :func:`ray_rectangle_hit`).
 
-    Shapes as in :func:`_ray_circle` with ``rects`` ``[P, 1, 4]``. The slabs are solved one
-    axis at a time. A direction component below 1e-12 is replaced by +1e-12: the slab interval
-    then becomes about +-1e13 m, i.e. "all of the line" when the origin lies between the slab's
-    two lines (on them included) and "beyond any range" otherwise, which is the exact
-    parallel-ray answer once beams are capped at their range.
+    Shapes as in :func:`_ray_circle` with ``rects`` ``[P, 1, 4]``.
     """
     half = rects[..., 2:] / 2
     lo = rects[..., :2] - half - origin  # [P, 1, 2] offsets of the slab lines
     hi = rects[..., :2] + half - origin
-    inside = ((lo <= 0) & (hi >= 0)).all(-1)  # [P, 1]
+    return ray_rectangle_hit(lo[..., 0], hi[..., 0], lo[..., 1], hi[..., 1], direction[..., 0], direction[..., 1])
+
+
+def ray_rectangle_hit(lo_x: torch.Tensor, hi_x: torch.Tensor, lo_y: torch.Tensor, hi_y: torch.Tensor,
+                      dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
+    """The slab test on components, the one home of its formula: the rectangle's sides lie at
+    ``lo_x, hi_x, lo_y, hi_y`` from the rays' origins, the rays run along unit ``(dx, dy)``; all
+    broadcast, in any layout. The smallest ``t >= 0`` in the rectangle, 0 inside, ``inf`` a miss.
+
+    The slabs are solved one axis at a time. A direction component below 1e-12 is replaced by
+    +1e-12: the slab interval then becomes about +-1e13 m, i.e. "all of the line" when the
+    origin lies between the slab's two lines (on them included) and "beyond any range"
+    otherwise, which is the exact parallel-ray answer once beams are capped at their range.
+    """
+    inside = (lo_x <= 0) & (hi_x >= 0) & (lo_y <= 0) & (hi_y >= 0)
     # Edges are part of the rectangle: an origin exactly on a slab line counts as between the
     # lines, also for a ray running along that line.
-    lo = torch.where(lo == 0, -1e-6, lo)
-    hi = torch.where(hi == 0, 1e-6, hi)
+    lo_x, lo_y = torch.where(lo_x == 0, -1e-6, lo_x), torch.where(lo_y == 0, -1e-6, lo_y)
+    hi_x, hi_y = torch.where(hi_x == 0, 1e-6, hi_x), torch.where(hi_y == 0, 1e-6, hi_y)
     tiny = 1e-12
-    inv = 1.0 / torch.where(direction.abs() < tiny, torch.full_like(direction, tiny), direction)  # [P, K, 2]
-    tx1, tx2 = lo[..., 0] * inv[..., 0], hi[..., 0] * inv[..., 0]
-    ty1, ty2 = lo[..., 1] * inv[..., 1], hi[..., 1] * inv[..., 1]
+    inv_x = 1.0 / torch.where(dx.abs() < tiny, torch.full_like(dx, tiny), dx)
+    inv_y = 1.0 / torch.where(dy.abs() < tiny, torch.full_like(dy, tiny), dy)
+    tx1, tx2 = lo_x * inv_x, hi_x * inv_x
+    ty1, ty2 = lo_y * inv_y, hi_y * inv_y
     t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
     t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
     hit = (t_far >= t_near) & (t_far >= 0)
@@ -165,15 +196,15 @@ def cast_rays(
 
 
 def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: Obstacles,
-                    max_range: float, static_shapes: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+                    max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`cast_rays` for rays of unit ``directions [B, N, K, 2]`` from ``origin [B, N, 2]``.
 
     A beam's hit is no closer than the obstacle's surface, so an obstacle farther than
     ``max_range`` returns a distance the cap removes anyway. Eager code therefore casts only the
     (UAV, obstacle) pairs within range, gathered into one batch per obstacle shape (the work
-    follows how many obstacles are near, not B x N x all of them). With ``static_shapes``
-    (what ``torch.compile(fullgraph=True)`` needs: no shape depends on the data) every pair is
-    cast by broadcasting. Both give the same distances and indices.
+    follows how many obstacles are near, not B x N x all of them). The compiled step, which
+    needs shapes that do not depend on the data, casts every pair with
+    :func:`cast_rays_worlds_last`; both give the same distances and indices.
     """
     b, n, k = directions.shape[:3]
     count = obstacles.count
@@ -182,26 +213,65 @@ def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: O
                 torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
     shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
               (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
-    if static_shapes:
-        # [B, N, 1, 1, 2] rays against [B, 1, M, 1, d] obstacles -> [B, N, M, K]
-        t = torch.cat([cast(origin[:, :, None, None], directions[:, :, None], tensors[:, None, :, None])
-                       for tensors, cast, _ in shapes if tensors.shape[-2]], -2)
-    else:
-        t = origin.new_full((b, n, count, k), math.inf)
-        offset = 0
-        for tensors, cast, distance in shapes:  # two obstacle shapes, not a loop over worlds or UAVs
-            m = tensors.shape[-2]
-            if m:
-                near = distance(origin, tensors) < max_range                     # [B, N, M]
-                bi, ni, mi = near.nonzero(as_tuple=True)
-                if bi.numel():
-                    t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions[bi, ni], tensors[bi, mi, None])
-            offset += m
+    t = origin.new_full((b, n, count, k), math.inf)
+    offset = 0
+    for tensors, cast, distance in shapes:  # two obstacle shapes, not a loop over worlds or UAVs
+        m = tensors.shape[-2]
+        if m:
+            near = distance(origin, tensors) < max_range                     # [B, N, M]
+            bi, ni, mi = near.nonzero(as_tuple=True)
+            if bi.numel():
+                t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions[bi, ni], tensors[bi, mi, None])
+        offset += m
     t_min, idx = t.min(-2)
     in_range = t_min < max_range
     return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(
         in_range, idx, torch.full_like(idx, -1)
     )
+
+
+def _nearer(t: torch.Tensor, m: int, best: torch.Tensor | None, index: torch.Tensor | None
+            ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fold obstacle ``m``'s hits ``t`` into the running nearest ``(best, index)``; a tie keeps the earlier obstacle."""
+    if best is None:
+        return t, torch.zeros_like(t, dtype=torch.long)
+    closer = t < best
+    return torch.where(closer, t, best), torch.where(closer, m, index)
+
+
+def cast_rays_worlds_last(px: torch.Tensor, py: torch.Tensor, dx: torch.Tensor, dy: torch.Tensor,
+                          obstacles: Obstacles, max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`cast_rays_along` with the worlds innermost, every beam cast at every obstacle (no
+    shape depends on the data): rays from ``(px, py) [N, B]`` along unit ``(dx, dy) [K, N, B]``.
+
+    The compiled step's layout: each obstacle's numbers ``[B]`` broadcast against the beams, so
+    compiled loops run along the worlds (a world's 36 beams or 5 UAVs are too few to fill a
+    vector). The formulas are :func:`ray_circle_hit` and :func:`ray_rectangle_hit`, as eager
+    casting uses them; the obstacles are folded in one at a time (a loop over the scenario's
+    obstacles, never over worlds or UAVs).
+
+    Returns:
+        ``(distance [K, N, B], obstacle [K, N, B])`` as :func:`cast_rays_along` gives them.
+    """
+    best = index = None
+    m = 0
+    # One obstacle at a time, a running minimum (ties keep the earlier obstacle): compiled, every
+    # obstacle's cast fuses into one pass over the beams, with nothing per beam stored between.
+    for circle in obstacles.circles.unbind(1):                  # [B, 3] each
+        fx, fy = px - circle[:, 0], py - circle[:, 1]           # [N, B]
+        best, index = _nearer(ray_circle_hit(fx, fy, dx, dy, (fx * fx + fy * fy) - circle[:, 2] * circle[:, 2]),
+                              m, best, index)
+        m += 1
+    for rect in obstacles.rectangles.unbind(1):                 # [B, 4] each
+        half_w, half_h = rect[:, 2] / 2, rect[:, 3] / 2
+        best, index = _nearer(ray_rectangle_hit((rect[:, 0] - half_w) - px, (rect[:, 0] + half_w) - px,
+                                                (rect[:, 1] - half_h) - py, (rect[:, 1] + half_h) - py, dx, dy),
+                              m, best, index)
+        m += 1
+    if best is None:
+        return (px.new_full(dx.shape, max_range), torch.full(dx.shape, -1, dtype=torch.long, device=px.device))
+    in_range = best < max_range
+    return torch.where(in_range, best, max_range), torch.where(in_range, index, -1)
 
 
 def _slab_z(oz: torch.Tensor, dz: torch.Tensor, low: torch.Tensor, high: torch.Tensor

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from ..config.scenario import INSTINCT_MODES
-from .geometry import length
+from .geometry import length, stored
 from .sensors import Neighbours, beam_return_offset
 
 
@@ -32,22 +32,26 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
         ``[B, N, 2]`` ``v_rep_i = sum_j (v_r_ij + v_t_ij)`` (Eq. 29).
     """
     dx, dy = offset[..., 0].contiguous(), offset[..., 1].contiguous()
+    goal = to_goal[..., None].unbind(-2)  # per component, [B, N, 1]
     if offset.shape[-1] == 3:  # 3-D (section 11)
         dz = offset[..., 2].contiguous()
-        return torch.stack(repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy + dz * dz), active, to_goal, gain, r0,
+        return torch.stack(repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy + dz * dz), active, goal, gain, r0,
                                         tangential, dz), -1)
-    vx, vy = repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy), active, to_goal, gain, r0, tangential)
+    vx, vy = repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy), active, goal, gain, r0, tangential)
     return torch.stack((vx, vy), -1)
 
 
-def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
-                 gain: float, r0: float, tangential: bool = True, dz: torch.Tensor | None = None
-                 ) -> tuple[torch.Tensor, ...]:
+def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active: torch.Tensor,
+                 to_goal: tuple[torch.Tensor, ...], gain: float, r0: float, tangential: bool = True,
+                 dz: torch.Tensor | None = None, dim: int = -1) -> tuple[torch.Tensor, ...]:
     """Eq. 26-29 (:func:`repulsion`) on the offset's components ``dx, dy`` and length ``dist``
     (each ``[B, N, M]``), summed over ``M``: ``(v_x, v_y)``, each ``[B, N]``. The one home of
     the repulsion's formula: :func:`repulsion` and :func:`instinct_command` call it.
 
-    In 3-D (``dz`` given, ``to_goal [B, N, 3]``; section 11): ``(v_x, v_y, v_z)``, with ``v_t`` of
+    ``to_goal``: the components of ``p_g - p_i``, each broadcasting against ``dx`` (``[B, N, 1]``).
+    ``dim``: the axis of the neighbours, summed over (0 for the compiled step's ``[M, N, B]``).
+
+    In 3-D (``dz`` given, ``to_goal`` of three components; section 11): ``(v_x, v_y, v_z)``, with ``v_t`` of
     ``|v_r|`` along the goal's component orthogonal to ``v_r``; where ``v_r`` and the goal are both
     level that is the 2-D ``v_t``, computed as in 2-D (and so where that component is zero)."""
     counted = active & (dist > 0) & (dist < r0)
@@ -58,20 +62,20 @@ def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active:
     if dz is not None:
         rz = -scale * dz
         if not tangential:
-            return rx.sum(-1), ry.sum(-1), rz.sum(-1)
-        return _tangential_3d(rx, ry, rz, to_goal)
+            return rx.sum(dim), ry.sum(dim), rz.sum(dim)
+        return _tangential_3d(rx, ry, rz, to_goal, dim)
     if not tangential:
-        return rx.sum(-1), ry.sum(-1)
+        return rx.sum(dim), ry.sum(dim)
     # v_t = rotate(v_r, +90 deg) = (-ry, rx), flipped where it points away from the goal.
-    gx, gy = to_goal[..., 0, None], to_goal[..., 1, None]
+    gx, gy = to_goal[0], to_goal[1]
     sign = torch.where(-ry * gx + rx * gy >= 0, 1.0, -1.0)
-    return (rx - sign * ry).sum(-1), (ry + sign * rx).sum(-1)
+    return (rx - sign * ry).sum(dim), (ry + sign * rx).sum(dim)
 
 
-def _tangential_3d(rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor, to_goal: torch.Tensor
-                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``sum_j (v_r + v_t)`` in 3-D for radial terms ``(rx, ry, rz) [B, N, M]`` (section 11)."""
-    gx, gy, gz = to_goal[..., 0, None], to_goal[..., 1, None], to_goal[..., 2, None]
+def _tangential_3d(rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor, to_goal: tuple[torch.Tensor, ...],
+                   dim: int = -1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``sum_j (v_r + v_t)`` in 3-D for radial terms ``(rx, ry, rz) [B, N, M]`` (section 11), summed over ``dim``."""
+    gx, gy, gz = to_goal
     sign = torch.where(-ry * gx + rx * gy >= 0, 1.0, -1.0)  # the planar form, as in 2-D
     rr = rx * rx + ry * ry + rz * rz
     k = (gx * rx + gy * ry + gz * rz) / torch.where(rr > 0, rr, torch.ones_like(rr))
@@ -82,7 +86,7 @@ def _tangential_3d(rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor, to_goal
     tx = torch.where(planar, -sign * ry, m * px)
     ty = torch.where(planar, sign * rx, m * py)
     tz = torch.where(planar, torch.zeros_like(rz), m * pz)
-    return (rx + tx).sum(-1), (ry + ty).sum(-1), (rz + tz).sum(-1)
+    return (rx + tx).sum(dim), (ry + ty).sum(dim), (rz + tz).sum(dim)
 
 
 def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
@@ -107,13 +111,15 @@ def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Te
         the UAVs and of the virtual UAV on the obstacle (not yet summed or clipped).
     """
     d_scan1, wall_offset = beam_return_offset(beams, heading, shortest, rings)
-    to_goal = goal[:, None, :] - position
+    to_goal = stored(goal[:, None, :] - position)
     uav = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance,
-                       neighbours.visible if pushing is None else pushing, to_goal, gain, r0, tangential,
-                       neighbours.dz)
+                       neighbours.visible if pushing is None else pushing,
+                       tuple(neighbours.against_pairs(g) for g in to_goal.unbind(-1)), gain, r0, tangential,
+                       neighbours.dz, neighbours.pair_dim)
+    uav = tuple(neighbours.per_uav(u) for u in uav)
     wall = repulsion_xy(wall_offset[..., 0, None], wall_offset[..., 1, None], d_scan1[..., None],
-                        torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal, gain, r0, tangential,
-                        None if rings is None else wall_offset[..., 2, None])
+                        torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal[..., None].unbind(-2), gain,
+                        r0, tangential, None if rings is None else wall_offset[..., 2, None])
     triggered = torch.minimum(neighbours.nearest_distance(), d_scan1) <= safe_distance
     return triggered, torch.stack(uav, -1), torch.stack(wall, -1)
 

@@ -16,7 +16,7 @@ from typing import Mapping
 import torch
 from tensordict import TensorDict
 
-from .geometry import circular_mean, length, pairwise, wrap
+from .geometry import circular_mean, length, pairwise, stored, wrap
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
         "uav": uav,
         "d_c": length(position - centre).mean(-1),
         "v_error": (v_i - v_c[:, None]).abs().mean(-1),
-        "phi_error": wrap(heading - phi_bar).abs().mean(-1),
+        "phi_error": wrap(stored(heading - phi_bar)).abs().mean(-1),
         "speed": v_c,
     }
 

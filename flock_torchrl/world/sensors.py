@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import torch
 
-from .geometry import Obstacles, cast_rays_3d, cast_rays_along, circular_mean, length, relative_angle, wrap
+from .geometry import (Obstacles, cast_rays_3d, cast_rays_along, cast_rays_worlds_last, circular_mean, length,
+                       relative_angle, stored, wrap)
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
@@ -73,6 +74,14 @@ def beam_unit_table(n_beams: int) -> tuple[list[float], list[float]]:
     return [math.cos(k * step) for k in range(n_beams)], [math.sin(k * step) for k in range(n_beams)]
 
 
+def worlds_last(per_uav: torch.Tensor) -> torch.Tensor:
+    """A per-UAV ``[B, N]`` tensor as a contiguous ``[N, B]`` one, stored so (compiled code would
+    otherwise keep the input's order, the UAVs innermost, in every tensor computed from it;
+    ``as_strided`` onto its own strides pins the layout, and changes nothing eagerly)."""
+    out = per_uav.transpose(0, 1).contiguous()
+    return out.as_strided(out.shape, out.stride())
+
+
 def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     """Unit vectors of every beam, ``[..., n_beams, 2]`` for headings ``[...]``: the heading's
     direction rotated by each beam's fixed offset (no trigonometry per beam).
@@ -99,7 +108,9 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
 
     Args:
         position: ``[B, N, 2]`` (3-D: ``[B, N, 3]``); heading: ``[B, N]``.
-        static_shapes: cast every beam at every obstacle (:func:`~.geometry.cast_rays_along`).
+        static_shapes: cast every beam at every obstacle, the worlds innermost in memory (in 2-D
+            :func:`~.geometry.cast_rays_worlds_last`; the results are ``[B, N, K]`` views of
+            ``[K, N, B]`` tensors, which :func:`shortest_beams` reads with ``worlds_last``).
         rings: 3-D only, the rings' elevations (rad, section 11): ``n_beams`` beams on each.
 
     Returns:
@@ -107,37 +118,83 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
         In 3-D ``[B, N, len(rings) n_beams]``, beam ``(r, k)`` at index ``r n_beams + k``.
     """
+    if rings is None and static_shapes:
+        h = worlds_last(heading)                                      # [N, B]
+        cos_o, sin_o = (torch.tensor(v, dtype=h.dtype, device=h.device)[:, None, None]
+                        for v in beam_unit_table(n_beams))             # [K, 1, 1]
+        cos_h, sin_h = torch.cos(h), torch.sin(h)
+        # beam_directions' formula, beams outermost: [K, N, B]
+        dx, dy = cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o
+        distance, index = cast_rays_worlds_last(worlds_last(position[..., 0]), worlds_last(position[..., 1]),
+                                                dx, dy, obstacles, max_range)
+        return distance.permute(2, 1, 0), index.permute(2, 1, 0)
     if rings is None:
-        return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range, static_shapes)
+        return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range)
     horizontal = beam_directions(heading, n_beams).repeat(1, 1, len(rings), 1)
     cos_e, sin_e = ring_tables(rings, n_beams, position)
     return cast_rays_3d(position, horizontal, cos_e, sin_e, obstacles, max_range, static_shapes)
 
 
-def smallest(values: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The ``k`` smallest entries along the last dimension, ascending, ties by index
-    (what a stable sort gives): ``k`` passes of ``argmin``, each masking its pick with ``inf``.
+def smallest(values: torch.Tensor, k: int, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` smallest entries along ``dim``, ascending, ties by index (what a stable sort
+    gives): ``k`` passes, each taking the minimum and the first index holding it, then masking
+    that index with ``inf``.
+
+    Along the last dimension (the eager layout) a pass is ``argmin``, a gather and a scatter.
+    Along another one (the compiled step's, the worlds innermost) it is two plain reductions over
+    ``dim``, the minimum and the first index where the values equal it, vectorised along the
+    inner dimensions; indices are counted there in the values' float dtype (exact up to 2^24)
+    and clamped into range. Both give the same values and indices (a NaN, which no checked
+    action produces, is the minimum of the first and skipped by the second).
 
     Returns:
-        ``(value [..., k], index [..., k])``; once the finite entries run out, values are
-        ``inf`` (and their indices arbitrary).
+        ``(value, index)``, ``k`` entries along ``dim``; once the finite entries run out, values
+        are ``inf`` (and their indices arbitrary).
     """
+    dim = dim % values.dim()
     picks, indices = [], []
-    values = values.clone()  # one working copy, masked in place
-    for _ in range(k):  # k = 3 selections, independent of the batch and the swarm
-        index = values.argmin(-1, keepdim=True)
-        picks.append(torch.gather(values, -1, index))
-        indices.append(index)
-        values.scatter_(-1, index, math.inf)
-    return torch.cat(picks, -1), torch.cat(indices, -1)
+    if dim == values.dim() - 1:
+        values = values.clone()  # one working copy, masked in place
+        for _ in range(k):  # k = 3 selections, independent of the batch and the swarm
+            index = values.argmin(-1, keepdim=True)
+            picks.append(torch.gather(values, -1, index))
+            indices.append(index)
+            values.scatter_(-1, index, math.inf)
+        return torch.cat(picks, -1), torch.cat(indices, -1)
+    n = values.shape[dim]
+    shape = [1] * values.dim()
+    shape[dim] = n
+    index = torch.arange(n, device=values.device, dtype=values.dtype).view(shape)
+    for _ in range(k):
+        low = values.amin(dim, keepdim=True)
+        at = torch.where(values == low, index, n).amin(dim, keepdim=True).clamp_max(n - 1)
+        picks.append(low)
+        indices.append(at)
+        values = torch.where(index == at, math.inf, values)
+    return torch.cat(picks, dim), torch.cat(indices, dim).long()
 
 
-def shortest_beams(beams: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+def pick(values: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
+    """``values`` at indices ``at`` along the first dimension, ``[k, ...]`` for ``at [k, ...]``
+    and ``values [M, ...]``: a masked sum over that dimension (the gather of the worlds-innermost
+    layout, vectorised along the worlds; exact: one term is the value, the rest are zeros)."""
+    index = torch.arange(values.shape[0], device=values.device, dtype=at.dtype).view(1, -1, *([1] * (at.dim() - 1)))
+    return torch.where(index == at[:, None], values[None], 0.0).sum(1)
+
+
+def shortest_beams(beams: torch.Tensor, n: int, worlds_last: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """The ``n`` shortest beams, ascending, ties by beam index.
+
+    Args:
+        worlds_last: select along the beams held outermost (``beams`` a ``[B, N, K]`` view of a
+            ``[K, N, B]`` tensor, as :func:`laser_scan` gives them with ``static_shapes``).
 
     Returns:
         ``(distance [B, N, n], beam index [B, N, n])``.
     """
+    if worlds_last:
+        d, at = smallest(beams.permute(2, 1, 0), n, 0)
+        return d.permute(2, 1, 0), at.permute(2, 1, 0)
     return smallest(beams, n)
 
 
@@ -187,7 +244,7 @@ def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor
 
     In 3-D (``goal [B, 3]``, ``climb [B, N]``; section 11): ``(d_g, alpha_g, beta_g, theta_g)``, the
     3-D distance, azimuth, elevation and off-axis angle (what the reward's angle term reads)."""
-    to_goal = goal[:, None, :] - position
+    to_goal = stored(goal[:, None, :] - position)
     if climb is None:
         return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
     alpha = relative_angle(to_goal, heading)
@@ -212,7 +269,9 @@ def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.
 
 @dataclass
 class Neighbours:
-    """What the camera measures of every other UAV, ``[B, N, N]`` (row i: seen by UAV i).
+    """What the camera measures of every other UAV, ``[B, N, N]`` (row i: seen by UAV i); with
+    ``pair_dim = 0`` ``[N_j, N, B]`` (the UAV seen outermost, the worlds innermost: the compiled
+    step's layout), and what reduces over the UAVs seen reduces over ``pair_dim``.
 
     ``distance``, ``bearing`` (relative to i's heading) and ``heading_difference``
     (``wrap(phi_i - phi_j)``) may carry S4 noise; ``visible`` never does. ``dx``, ``dy`` are
@@ -232,6 +291,15 @@ class Neighbours:
     elevation: torch.Tensor | None = None
     climb_difference: torch.Tensor | None = None
     view_angle: torch.Tensor | None = None
+    pair_dim: int = -1  # the axis of the UAV seen: -1 ([B, N, M]) or 0 ([M, N, B])
+
+    def per_uav(self, values: torch.Tensor) -> torch.Tensor:
+        """A per-UAV result of this layout (``[B, N, ...]``, or ``[N, B, ...]`` with ``pair_dim = 0``) as ``[B, N, ...]``."""
+        return values if self.pair_dim == -1 else values.transpose(0, 1)
+
+    def against_pairs(self, per_uav: torch.Tensor) -> torch.Tensor:
+        """A per-UAV ``[B, N]`` tensor shaped to broadcast against the pairs (UAV i's value)."""
+        return per_uav[..., None] if self.pair_dim == -1 else per_uav.transpose(0, 1)[None]
 
     @property
     def cone_angle(self) -> torch.Tensor:
@@ -250,7 +318,8 @@ class Neighbours:
 
     def nearest_distance(self) -> torch.Tensor:
         """``d_uav1``: distance to the nearest visible UAV, ``inf`` if none, ``[B, N]``."""
-        return torch.where(self.visible, self.distance, torch.full_like(self.distance, math.inf)).amin(-1)
+        return self.per_uav(torch.where(self.visible, self.distance,
+                                        torch.full_like(self.distance, math.inf)).amin(self.pair_dim))
 
 
 def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: float, half_fov: float,
@@ -313,14 +382,17 @@ class NearPairs:
 
     flat: torch.Tensor | None
     valid: torch.Tensor
+    worlds_last: bool = False  # every pair kept, as [N_j, N, B]
 
     def take(self, pairs: torch.Tensor) -> torch.Tensor:
-        """The packed ``[B, N, M]`` entries of a ``[B, N, N]`` tensor (e.g. S4 noise draws)."""
+        """The packed ``[B, N, M]`` entries of a ``[B, N, N]`` tensor (e.g. S4 noise draws), in the neighbours' layout."""
+        if self.worlds_last:
+            return pairs.permute(2, 1, 0)
         return pairs if self.flat is None else pairs.flatten().take(self.flat)
 
 
 def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
-                    static_shapes: bool = False, climb: torch.Tensor | None = None
+                    static_shapes: bool = False, climb: torch.Tensor | None = None, worlds_last: bool = False
                     ) -> tuple[Neighbours, NearPairs, torch.Tensor]:
     """:func:`observe_neighbours` for the pairs that can matter: only a UAV closer than
     ``camera_range`` can be seen or push back (the repulsion's ``r0`` is the camera's range).
@@ -340,11 +412,16 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     camera a cone about the direction of flight, and the neighbours carry their elevations and
     climb differences (:func:`measure_pairs_3d`).
 
+    ``worlds_last`` (with ``static_shapes``): every pair, laid out ``[N_j, N, B]`` (``pair_dim =
+    0``), the compiled step's layout; the same formulas.
+
     Returns:
         ``(neighbours [B, N, M], where they came from, closest pair [B])`` (``inf`` for one UAV).
     """
     b, n = heading.shape
     dev = position.device
+    if static_shapes and worlds_last:
+        return _all_pairs_worlds_last(position, heading, camera_range, half_fov, climb)
     px, py = position[..., 0].contiguous(), position[..., 1].contiguous()
     dx_all = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
     dy_all = py[..., None, :] - py[..., :, None]
@@ -415,6 +492,35 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
             closest)
 
 
+def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
+                           climb: torch.Tensor | None) -> tuple[Neighbours, NearPairs, torch.Tensor]:
+    """:func:`near_neighbours` of every pair, laid out ``[N_j, N_i, B]``: ``[j, i, b]`` is what UAV
+    ``i`` of world ``b`` measures of UAV ``j``."""
+    n, b = heading.shape[1], heading.shape[0]
+    px, py, h = worlds_last(position[..., 0]), worlds_last(position[..., 1]), worlds_last(heading)  # [N, B]
+    dx, dy = px[:, None] - px[None], py[:, None] - py[None]                       # [N_j, N_i, B]: p_j - p_i
+    squared = dx * dx + dy * dy
+    dz = None
+    if climb is not None:
+        pz = worlds_last(position[..., 2])
+        dz = pz[:, None] - pz[None]
+        squared = squared + dz * dz
+    others = ~torch.eye(n, dtype=torch.bool, device=position.device)[..., None]  # never oneself
+    # sqrt is monotone and exactly rounded: the smallest distance is the root of the smallest square.
+    closest = torch.sqrt(torch.where(others, squared, math.inf).amin(0).amin(0))
+    valid = others.expand(n, n, b)
+    if climb is not None:
+        g = worlds_last(climb)
+        m = measure_pairs_3d(dx, dy, dz, h[None], h[:, None], g[None], g[:, None])
+        visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
+        return (Neighbours(visible=visible, dx=dx, dy=dy, valid=valid, dz=dz, pair_dim=0, **m),
+                NearPairs(None, valid, worlds_last=True), closest)
+    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, h[None], h[:, None])
+    visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
+    return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid, pair_dim=0),
+            NearPairs(None, valid, worlds_last=True), closest)
+
+
 def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> torch.Tensor:
     """``o_cam`` (Eq. 17): the ``n`` closest visible UAVs, ascending by measured distance.
 
@@ -426,15 +532,20 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
         ``[1, 0, 0, 0, 0]``).
     """
     key = torch.where(neighbours.visible, neighbours.distance, torch.full_like(neighbours.distance, math.inf))
-    first, order = smallest(key, min(n, key.shape[-1]))
-    present = torch.isfinite(first)
-    parts = [(torch.gather(neighbours.distance, -1, order) / camera_range).clamp(0.0, 1.0),
-             torch.gather(neighbours.bearing, -1, order) / math.pi]
+    dim = neighbours.pair_dim
+    first, order = smallest(key, min(n, key.shape[dim]), dim)
+
+    def at_order(values: torch.Tensor) -> torch.Tensor:  # [B, N, m] in either layout
+        return torch.gather(values, -1, order) if dim == -1 else pick(values, order).permute(2, 1, 0)
+
+    present = torch.isfinite(first if dim == -1 else first.permute(2, 1, 0))
+    parts = [(at_order(neighbours.distance) / camera_range).clamp(0.0, 1.0),
+             at_order(neighbours.bearing) / math.pi]
     if neighbours.elevation is not None:  # 3-D (section 11): the elevation after the azimuth
-        parts.append(torch.gather(neighbours.elevation, -1, order) / math.pi)
-    parts.append(torch.gather(neighbours.heading_difference, -1, order) / math.pi)
+        parts.append(at_order(neighbours.elevation) / math.pi)
+    parts.append(at_order(neighbours.heading_difference) / math.pi)
     if neighbours.climb_difference is not None:
-        parts.append(torch.gather(neighbours.climb_difference, -1, order) / math.pi)
+        parts.append(at_order(neighbours.climb_difference) / math.pi)
     slots = torch.stack(parts, -1)
     missing = slots.new_tensor([1.0] + [0.0] * (len(parts) - 1))
     slots = torch.where(present[..., None], slots, missing)
@@ -452,13 +563,13 @@ def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_ran
     section 11) ``[B, N, 5]``: ``[d_c, alpha_c, beta_c / pi, phi_i - phi_bar, (gamma_i - gamma_bar) / pi]``.
     """
     centre = position.mean(-2, keepdim=True)
-    to_centre = centre - position
+    to_centre = stored(centre - position)
     d = length(to_centre)
     phi_bar = circular_mean(heading, -1, keepdim=True)
     parts = [(d / camera_range).clamp_max(1.0), relative_angle(to_centre, heading) / math.pi]
     if climb is not None:
         parts.append(elevation_of(to_centre[..., 0], to_centre[..., 1], to_centre[..., 2]) / math.pi)
-    parts.append(wrap(heading - phi_bar) / math.pi)
+    parts.append(wrap(stored(heading - phi_bar)) / math.pi)
     if climb is not None:
         parts.append((climb - climb.mean(-1, keepdim=True)) / math.pi)
     return torch.stack(parts, -1)
@@ -499,8 +610,9 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
     # The measured offsets follow the measured distance and bearing (relative to the true heading).
     angle = bearing + torch.atan2(neighbours.dy, neighbours.dx) - neighbours.bearing
     if neighbours.elevation is None:
-        noisy = Neighbours(distance, bearing, heading_difference, neighbours.visible,
-                           distance * torch.cos(angle), distance * torch.sin(angle), neighbours.valid)
+        noisy = dataclasses.replace(neighbours, distance=distance, bearing=bearing,
+                                    heading_difference=heading_difference, dx=distance * torch.cos(angle),
+                                    dy=distance * torch.sin(angle))
         return beams, noisy
     # 3-D (section 11): the elevation is measured exactly; the horizontal part follows the noisy distance.
     flat = distance * torch.cos(neighbours.elevation)
@@ -535,6 +647,6 @@ __all__ = [
     "elevation_of", "measure_pairs_3d", "off_axis", "piece_sizes", "planar_entries", "ring_tables",
     "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
     "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
-    "shortest_beams", "smallest",
+    "pick", "shortest_beams", "smallest", "worlds_last",
     "swarm_centre_state", "visibility",
 ]

@@ -23,7 +23,7 @@ from ..config import ScenarioConfig
 from ..config.scenario import FULL_HEIGHT
 from .dynamics import (action_to_command, clamp_altitude, clip_command, first_order_step, reflect_in_box,
                        update_attitude, update_heading)
-from .geometry import Obstacles, circular_mean, length, nearest_obstacle_distance, wrap
+from .geometry import Obstacles, circular_mean, length, nearest_obstacle_distance, stored, wrap
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
 from .reward import cohesion_range, total_reward
@@ -97,7 +97,10 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     ``static_shapes``: no shape depends on the data (every UAV pair, every beam against every
     obstacle), which ``torch.compile(fullgraph=True)`` needs; otherwise only the pairs and the
     obstacles within range are measured (eager; what pays in large swarms and forests). The
-    same formulas either way, so the same values up to float round-off.
+    same formulas either way, so the same values up to float round-off. With ``static_shapes``
+    the beams and the UAV pairs are also held with the worlds innermost (``[K, N, B]``,
+    ``[N_j, N, B]``), so compiled loops run along the worlds and the shortest beams and nearest
+    neighbours reduce over the outermost dimension; the keys returned have the same shapes.
     """
     position, heading, goal = state["position"], state["heading"], state["goal"]
     climb, rings = (state["climb"], cfg.rings) if cfg.dims == 3 else (None, None)  # 3-D: section 11
@@ -106,7 +109,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
                                       rings)
     # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
     true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov,
-                                                      static_shapes, climb)
+                                                      static_shapes, climb, worlds_last=static_shapes)
     # The critic's camera sees all round: the same measurements, wider visibility.
     all_round = true_neighbours.with_visibility(
         visibility(true_neighbours.distance, true_neighbours.cone_angle, cfg.camera_range, math.pi, pairs.valid))
@@ -121,8 +124,8 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
             angle_std=cfg.noise_angle, max_range=cfg.laser_range, normals=packed)
     # The shortest beams, selected once: the observation, the instinct and (without noise) the
     # critic's state all read them.
-    sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1))
-    true_shortest = shortest_beams(beams, max(cfg.n_scan, 1)) if cfg.noise else sensed_shortest
+    sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1), static_shapes)
+    true_shortest = shortest_beams(beams, max(cfg.n_scan, 1), static_shapes) if cfg.noise else sensed_shortest
     polar = goal_polar(position, heading, goal, climb)
     d_goal, alpha_goal = polar[0], polar[-1]  # 3-D: the off-axis angle, what r_g reads
     o_g = goal_observation(position, heading, goal, cfg.goal_scale, polar)
@@ -202,7 +205,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     reward = total_reward(
         d_goal=now["d_goal"], d_goal_prev=sensed["d_goal"], alpha_goal=now["alpha_goal"],
         goal_radius=cfg.goal_radius, d_collision=d_collision,
-        heading_deviation=wrap(heading - circular_mean(heading, -1, keepdim=True)),
+        heading_deviation=wrap(stored(heading - circular_mean(heading, -1, keepdim=True))),
         d_centre=length(position - centre),
         action=action, prev_action=prev_action, reach=cohesion_range(cfg.cohesion_range, position.shape[-2]),
         shape=cfg.collision_shape)
