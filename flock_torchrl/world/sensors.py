@@ -262,9 +262,11 @@ def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.
     """
     polar = polar if polar is not None else goal_polar(position, heading, goal)
     d, alpha = polar[0], polar[1]
+    # Stacked outermost and viewed as [B, N, k] (here and in s_c): compiled, the loop computing
+    # the pieces then writes each one whole; interleaved writes keep it from vectorising its atan2.
     if len(polar) == 2:
-        return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), -1)
-    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi, polar[2] / math.pi), -1)
+        return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), 0).movedim(0, -1)
+    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi, polar[2] / math.pi), 0).movedim(0, -1)
 
 
 @dataclass
@@ -299,7 +301,7 @@ class Neighbours:
 
     def against_pairs(self, per_uav: torch.Tensor) -> torch.Tensor:
         """A per-UAV ``[B, N]`` tensor shaped to broadcast against the pairs (UAV i's value)."""
-        return per_uav[..., None] if self.pair_dim == -1 else per_uav.transpose(0, 1)[None]
+        return per_uav[..., None] if self.pair_dim == -1 else worlds_last(per_uav)[None]
 
     @property
     def cone_angle(self) -> torch.Tensor:
@@ -515,7 +517,8 @@ def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera
         visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
         return (Neighbours(visible=visible, dx=dx, dy=dy, valid=valid, dz=dz, pair_dim=0, **m),
                 NearPairs(None, valid, worlds_last=True), closest)
-    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, h[None], h[:, None])
+    # Stored: the masks below are then compared afresh where read (a stored bool costs more than that).
+    distance, rel_bearing, heading_difference = (stored(t) for t in measure_pairs(dx, dy, h[None], h[:, None]))
     visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
     return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid, pair_dim=0),
             NearPairs(None, valid, worlds_last=True), closest)
@@ -572,7 +575,7 @@ def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_ran
     parts.append(wrap(stored(heading - phi_bar)) / math.pi)
     if climb is not None:
         parts.append((climb - climb.mean(-1, keepdim=True)) / math.pi)
-    return torch.stack(parts, -1)
+    return torch.stack(parts, 0).movedim(0, -1)
 
 
 def sensor_normals(n_worlds: int, n_uavs: int, n_beams: int, generator: torch.Generator | None = None,
