@@ -95,7 +95,8 @@ class PopulationTraining(Training):
                                      device=device, init_random_frames=init_random * self.k or None,
                                      exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
                                      postproc=AgentwiseDone(one.n_agents), cudagraph_policy=policy_capture(cfg),
-                                     return_same_td=True)  # off-policy: each batch is copied into the buffer
+                                     # off-policy: each batch is copied into the buffer (make_collectors)
+                                     return_same_td=True, no_cuda_sync=True)
                            for one in self.envs]
         self.collector = self.collectors[0]
         if payload is not None:
