@@ -125,7 +125,9 @@ class SamplingActor(TensorDictModuleBase):
         super().__init__()
         head = actor.module[1]
         if head.return_log_prob or head.distribution_class is not TanhNormal:
-            raise ValueError("SamplingActor: a make_actor(stochastic=True) actor without return_log_prob")
+            raise ValueError("SamplingActor: expected make_actor(stochastic=True)'s TanhNormal actor without "
+                             f"return_log_prob, got return_log_prob={head.return_log_prob} and "
+                             f"{head.distribution_class.__name__}")
         self.actor = actor
         # MLP -> NormalParamExtractor: (loc, scale); in a tuple, its parameters are registered once (the actor's)
         self._net = (actor.module[0].module,)
