@@ -120,7 +120,9 @@ class SamplingActor(TensorDictModuleBase):
     runs through there (whose call costs four times its two ops); and the box's affine map
     ``(high + low) / 2 + (high - low) / 2 * y`` only where the box is not ``[-1, 1]`` (as
     TorchRL's ``TanhNormal`` composes it): the same operations in the same order, so the same
-    numbers from the same generator, bit for bit (tests/test_sampling_actor.py)."""
+    numbers from the same generator, bit for bit (tests/test_sampling_actor.py). It is for acting
+    (the losses differentiate the actor itself): where the clamp bites, its gradient would be
+    zero, not the safe tanh's."""
 
     def __init__(self, actor: ProbabilisticActor) -> None:
         super().__init__()
