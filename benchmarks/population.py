@@ -10,8 +10,9 @@ buffer, sampling, update: the run's time split without evaluation, checkpoints o
 compiled update) and prints where that time went. Each row trains in a fresh child process,
 so its peak resident memory (``ru_maxrss``) is its own: a population's memory per member is its
 peak over the members, and what each member beyond the first adds is the population's peak less
-the solo run's, over ``members - 1``. The GPU's rows are :mod:`benchmarks.gpu`'s. Run with one
-thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+the solo run's, over ``members - 1``. The paper recipe's rows end with what its collector costs
+per step (:mod:`benchmarks.collection`). The GPU's rows are :mod:`benchmarks.gpu`'s. Run with
+one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations
@@ -26,11 +27,14 @@ import tempfile
 import time
 from pathlib import Path
 
-import torch
+if not __package__:  # `python benchmarks/population.py`: the repository's root, so `benchmarks` imports
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from flock_torchrl.config import TrainConfig
-from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+import torch  # noqa: E402
+
+from flock_torchrl.config import TrainConfig  # noqa: E402
+from flock_torchrl.run.launch import train  # noqa: E402
+from flock_torchrl.run.trainer import make_train_config  # noqa: E402
 
 LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
 
@@ -221,6 +225,10 @@ def population_lines(frames: int = 3000, members: int = 10, recipes: str = "pape
                     say(line)
             if recipe == "paper":
                 say(evaluation_line(recipe, members))
+                from benchmarks.collection import collection_lines  # the solo loop's collection, per step
+                for line in collection_lines(compile=True, steps=300 if frames >= 3000 else 100,
+                                             rounds=7 if frames >= 3000 else 3):
+                    say(line)
     return lines
 
 

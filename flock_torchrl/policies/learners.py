@@ -38,7 +38,7 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import ClipPPOLoss, DDPGLoss, SACLoss, SoftUpdate, ValueEstimators
 
 from ..config import DDPGConfig, PPOConfig, SACConfig
-from .models import ACTION, LOG_PROB, make_actor, make_qvalue, make_value
+from .models import ACTION, LOG_PROB, SamplingActor, make_actor, make_qvalue, make_value
 
 # PPO normalises advantages over all UAVs of the batch on purpose (one shared policy).
 warnings.filterwarnings("ignore", message="You requested advantage normalization")
@@ -203,7 +203,7 @@ class SACLearner(_OffPolicy):
         self.cfg = cfg
         self.actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth)
         self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
-        self.collector_policy = self.actor
+        self.collector_policy = SamplingActor(self.actor)  # the actor's draws, without its per-step overhead
         self.loss = SACLoss(
             actor_network=self.actor, qvalue_network=self.qvalue, num_qvalue_nets=cfg.num_qvalue_nets,
             loss_function=cfg.loss_function, alpha_init=cfg.alpha_init, target_entropy=cfg.target_entropy,

@@ -27,6 +27,7 @@ from torch import nn
 from torchrl.data.replay_buffers.samplers import Sampler
 
 from .learners import FiniteLosses, adam, captured, make_learner
+from .models import SamplingActor
 
 # The trainable parameters and the soft-updated targets of each learner, as SoftUpdate pairs
 # them (``target_<name>_params`` follows ``<name>_params``).
@@ -82,12 +83,15 @@ class PopulationPolicy(TensorDictModuleBase):
     """The members' actors as one module over the population's worlds ``[K * B]`` (member-major:
     world ``k * B + b`` is member k's): member k's weights act on member k's worlds.
 
-    ``after``: a module applied to the whole batch afterwards (DDPG's exploration noise)."""
+    ``after``: a module applied to the whole batch afterwards (DDPG's exploration noise);
+    ``acting``: what acts with the member's weights put into ``actor`` (by default the actor
+    itself; a SAC actor's :class:`~.models.SamplingActor`, as a solo run's collector acts)."""
 
     def __init__(self, actor: TensorDictModuleBase, params: TensorDictBase, members: int,
-                 after: TensorDictModuleBase | None = None) -> None:
+                 after: TensorDictModuleBase | None = None, acting: TensorDictModuleBase | None = None) -> None:
         super().__init__()
         self.actor, self.members, self.after = actor, members, after
+        self._acting = (actor if acting is None else acting,)  # in a tuple: the actor's parameters registered once
         self.params = params
         self.in_keys = list(actor.in_keys)
         self.out_keys = list(actor.out_keys) + ([k for k in after.out_keys if k not in actor.out_keys]
@@ -95,7 +99,7 @@ class PopulationPolicy(TensorDictModuleBase):
 
         def one(p: TensorDictBase, td: TensorDictBase) -> TensorDictBase:
             with p.to_module(self.actor):
-                return self.actor(td)
+                return self._acting[0](td)
 
         self._vmapped = torch.vmap(one, (0, 0), randomness="different") if members > 1 else _unbatched(one, 0)
 
@@ -161,8 +165,9 @@ class PopulationLearner:
         self._target_weight = 1 - (1 - algo_cfg.tau)
         self._target_pairs = [(stacked.get(f"{n}_params"), stacked.get(f"target_{n}_params")) for n in _TARGETS[name]]
         self.exploration = getattr(self.template, "exploration", None)
+        acting = self.template.collector_policy if isinstance(self.template.collector_policy, SamplingActor) else None
         self.collector_policy = PopulationPolicy(self.actor, stacked.get("actor_network_params"), self.members,
-                                                 after=self.exploration)
+                                                 after=self.exploration, acting=acting)
         terms, stats = _TERMS[name], _STATS[name]
 
         def member_losses(p: TensorDictBase, batch: TensorDictBase) -> dict[str, torch.Tensor]:

@@ -99,16 +99,26 @@ def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv]
 
 
 def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, policy: Any, steps: int,
-                    init_random: int, device: torch.device) -> list[Any]:
+                    init_random: int, device: torch.device, reuse_batch: bool = False) -> list[Any]:
     """One collector per env (more sizes: stepped in turn, their batches learned from together),
     each batch leaving it with per-UAV done flags; with ``workers > 1`` one multi-process
-    collector, started where a stop signal cannot reach its workers."""
+    collector, started where a stop signal cannot reach its workers.
+
+    ``reuse_batch``: an in-process collector hands out the same batch each time, overwritten by
+    the next (TorchRL's ``return_same_td``), for a loop that is done with a batch before it asks
+    for the next one (an off-policy run copies it into the replay buffer); it saves a copy of
+    every batch, a fifth of the paper recipe's collection time (one env step per batch). Its
+    ``no_cuda_sync`` keeps a GPU's collection on the stream the update runs on, as without
+    ``return_same_td`` (with it TorchRL collects on a side stream and waits for it on the host
+    after every batch); the collector's env, policy and batch share one device, so it has no
+    copy between devices to synchronise."""
     exp = cfg.experiment
     kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 else exp.num_envs) * steps, total_frames=-1,
                   device=device, init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
                   auto_register_policy_transforms=False, cudagraph_policy=policy_capture(cfg))
     def single(env: FlockingEnv) -> Collector:
-        return Collector(env, policy, track_traj_ids=False, postproc=AgentwiseDone(env.n_agents), **kwargs)
+        return Collector(env, policy, track_traj_ids=False, postproc=AgentwiseDone(env.n_agents),
+                         return_same_td=reuse_batch, no_cuda_sync=reuse_batch, **kwargs)
 
     first = start_workers(lambda: MultiSyncCollector(
         [functools.partial(factory, cfg.seed * 1000 + w) for w in range(exp.workers)], policy,

@@ -94,7 +94,9 @@ class PopulationTraining(Training):
                                      frames_per_batch=one.num_envs * exp.steps_per_batch, total_frames=-1,
                                      device=device, init_random_frames=init_random * self.k or None,
                                      exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False,
-                                     postproc=AgentwiseDone(one.n_agents), cudagraph_policy=policy_capture(cfg))
+                                     postproc=AgentwiseDone(one.n_agents), cudagraph_policy=policy_capture(cfg),
+                                     # off-policy: each batch is copied into the buffer (make_collectors)
+                                     return_same_td=True, no_cuda_sync=True)
                            for one in self.envs]
         self.collector = self.collectors[0]
         if payload is not None:

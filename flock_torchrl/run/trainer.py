@@ -74,8 +74,10 @@ class Training:
                     env.set_state(state)
         steps = exp.steps_per_batch if off_policy else cfg.algo.rollout_steps
         init_random = max(0, exp.init_random_frames - self.counters["frames"]) if off_policy else 0
+        # An off-policy batch is copied into the replay buffer before the next is collected: the
+        # collector may overwrite it (an on-policy learner writes its advantages into its batch).
         self.collectors = make_collectors(cfg, self.envs, factory, self.learner.collector_policy, steps, init_random,
-                                          device)
+                                          device, reuse_batch=off_policy)
         if payload is not None:
             restore_rng(payload["rng"], device)
         self.meta = checkpoint_meta(cfg, self.env)
