@@ -144,3 +144,33 @@ def test_compiled_forest_matches_its_eager_twin():
         assert torch.equal(a["obstacles", "drawn_circles"], b["obstacles", "drawn_circles"])
         assert torch.equal(a["obstacles", "drawn_rectangles"], b["obstacles", "drawn_rectangles"])
     assert_twins(eager, compiled)
+
+
+def test_static_shape_sensing_hands_back_the_eager_layout():
+    # The compiled step reads some of its own outputs back on the next step; a reset writes them
+    # by eager sensing. Different strides would make it compile anew, alternately.
+    for scenario in ("train", "train3d"):
+        env = FlockingEnv(scenario, num_envs=8, seed=1, policy_id="policy3_g")
+        env.reset()
+        eager, static = sense(env.world, env._static, env.cfg), sense(env.world, env._static, env.cfg, None, True)
+        for key in static:
+            if key not in ("scan", "scan_obstacle"):  # the laser's [B, N, K] views of [K, N, B]
+                assert static[key].is_contiguous(), (scenario, key)
+        for key in ("instinct_triggered", "instinct_command", "d_goal"):  # what advance reads back
+            assert static[key].stride() == eager[key].stride(), (scenario, key)
+
+
+def test_compiled_step_compiles_once_across_resets():
+    env = FlockingEnv("train", num_envs=4, seed=2, policy_id="policy3_g", compile_step=True)
+    gen = torch.Generator().manual_seed(0)
+    td = env.reset()
+    td.set(("agents", "action"), torch.rand(4, 5, 2, generator=gen) * 2 - 1)
+    td = env.step_and_maybe_reset(td)[1]  # compiles
+    with torch.compiler.set_stance("fail_on_recompile"):
+        for t in range(6):
+            if t == 2:
+                td = env.reset()  # every world anew
+            if t == 4:
+                td = env.reset(td.empty().set("_reset", torch.tensor([[True], [False], [False], [True]])))
+            td.set(("agents", "action"), torch.rand(4, 5, 2, generator=gen) * 2 - 1)
+            td = env.step_and_maybe_reset(td)[1]

@@ -143,7 +143,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
         safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest,
         mode=cfg.instinct_mode, rings=rings)
-    return {
+    out = {
         "observation": observation,
         "state": critic_state,
         "scan": sensed_beams,
@@ -157,6 +157,10 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "obstacle_distance": nearest_obstacle_distance(position, obstacles),
         "closest_pair": closest,
     }
+    if static_shapes:  # per-UAV results of the worlds-last layout are transposed views: stored [B, N, ...],
+        # as eager sensing gives them (the step reads some back: inputs of other strides would recompile it)
+        out = {key: value if key in ("scan", "scan_obstacle") else value.contiguous() for key, value in out.items()}
+    return out
 
 
 def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
