@@ -296,7 +296,7 @@ class Neighbours:
     pair_dim: int = -1  # the axis of the UAV seen: -1 ([B, N, M]) or 0 ([M, N, B])
 
     def per_uav(self, values: torch.Tensor) -> torch.Tensor:
-        """A per-UAV result of this layout (``[B, N, ...]``, or ``[N, B, ...]`` with ``pair_dim = 0``) as ``[B, N, ...]``."""
+        """A per-UAV result of this layout (``[B, N, ...]``; ``[N, B, ...]`` with ``pair_dim = 0``) as ``[B, N, ...]``."""
         return values if self.pair_dim == -1 else values.transpose(0, 1)
 
     def against_pairs(self, per_uav: torch.Tensor) -> torch.Tensor:
@@ -387,7 +387,7 @@ class NearPairs:
     worlds_last: bool = False  # every pair kept, as [N_j, N, B]
 
     def take(self, pairs: torch.Tensor) -> torch.Tensor:
-        """The packed ``[B, N, M]`` entries of a ``[B, N, N]`` tensor (e.g. S4 noise draws), in the neighbours' layout."""
+        """The packed ``[B, N, M]`` entries of a ``[B, N, N]`` tensor (e.g. S4 noise draws), in their layout."""
         if self.worlds_last:
             return pairs.permute(2, 1, 0)
         return pairs if self.flat is None else pairs.flatten().take(self.flat)
@@ -511,13 +511,14 @@ def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera
     # sqrt is monotone and exactly rounded: the smallest distance is the root of the smallest square.
     closest = torch.sqrt(torch.where(others, squared, math.inf).amin(0).amin(0))
     valid = others.expand(n, n, b)
+    # Stored: the masks below are then compared afresh where read (a stored bool costs more than that).
     if climb is not None:
         g = worlds_last(climb)
         m = measure_pairs_3d(dx, dy, dz, h[None], h[:, None], g[None], g[:, None])
+        m = {key: stored(t) for key, t in m.items()}
         visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
         return (Neighbours(visible=visible, dx=dx, dy=dy, valid=valid, dz=dz, pair_dim=0, **m),
                 NearPairs(None, valid, worlds_last=True), closest)
-    # Stored: the masks below are then compared afresh where read (a stored bool costs more than that).
     distance, rel_bearing, heading_difference = (stored(t) for t in measure_pairs(dx, dy, h[None], h[:, None]))
     visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
     return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid, pair_dim=0),
