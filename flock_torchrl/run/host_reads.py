@@ -1,0 +1,93 @@
+"""Where code reads tensor values on the host: on a GPU each such read waits for the device
+(a synchronisation), and none may sit inside a captured CUDA graph.
+
+:class:`HostReads` is a ``TorchDispatchMode`` that counts, by operator and by the line of
+flock_torchrl, TorchRL or tensordict that asked, the operators whose result depends on tensor
+values the host must see: ``.item()``, ``bool()``, ``int()`` and ``float()`` of a tensor
+(``_local_scalar_dense``), ``nonzero``, indexing with a boolean mask, ``masked_select``,
+``unique``, ``equal`` and ``allclose``, and a copy from a CUDA tensor to the CPU. It sees them on
+a CPU just as on a GPU, so the tests here can hold a training iteration to none::
+
+    with HostReads() as reads:
+        ...
+    print(reads.total, reads.table())
+
+It cannot see ``Tensor.tolist()`` or ``.numpy()`` of a CPU tensor (they read memory without
+dispatching an operator), nor what runs inside a compiled graph (it runs such code eagerly, as
+the compiled paths' eager twins).
+"""
+
+from __future__ import annotations
+
+import collections
+import traceback
+from typing import Any
+
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+aten = torch.ops.aten
+
+# Operators whose output (a Python number, or a tensor whose shape depends on values) needs the
+# values on the host.
+_READING = {aten._local_scalar_dense, aten.is_nonzero, aten.nonzero, aten.masked_select, aten._unique2,
+            aten.unique_dim, aten.unique_consecutive, aten.equal, aten.allclose, aten.nonzero_static}
+# Indexing operators that read the values of a boolean index.
+_INDEXING = {aten.index, aten.index_put, aten.index_put_, aten._index_put_impl_}
+# The packages whose lines name a read (the first such frame, innermost first, is its place).
+_PACKAGES = ("flock_torchrl/", "torchrl/", "tensordict/")
+
+
+def _reads(func: Any, args: tuple, kwargs: dict) -> bool:
+    packet = func.overloadpacket
+    if packet in _READING:
+        return packet is not aten.nonzero_static
+    if packet in _INDEXING:
+        indices = args[1] if len(args) > 1 else kwargs.get("indices", ())
+        return any(isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in indices or ())
+    if packet is aten._to_copy:
+        source, target = args[0], kwargs.get("device")
+        return (isinstance(source, torch.Tensor) and source.device.type == "cuda" and target is not None
+                and torch.device(target).type == "cpu")
+    return False
+
+
+def _place() -> str:
+    """``package/file.py:line:function`` of the innermost frame in one of :data:`_PACKAGES`
+    (outside this module), or ``"elsewhere"``."""
+    for frame in reversed(traceback.extract_stack()[:-3]):
+        name = frame.filename.replace("\\", "/")
+        if name.endswith("run/host_reads.py"):
+            continue
+        for package in _PACKAGES:
+            at = name.rfind("/" + package)
+            if at >= 0:
+                return f"{name[at + 1:]}:{frame.lineno}:{frame.name}"
+    return "elsewhere"
+
+
+class HostReads(TorchDispatchMode):
+    """Counts host reads of tensor values while active (see the module's docstring).
+
+    ``counts``: a ``Counter`` of ``(operator, place)``; ``total``: their sum; ``table()``: one
+    line per place, most first."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.counts: collections.Counter[tuple[str, str]] = collections.Counter()
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        if _reads(func, args, kwargs):
+            self.counts[(str(func.overloadpacket.__name__), _place())] += 1
+        return func(*args, **kwargs)
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def table(self, per: int = 1) -> str:
+        """The counts (divided by ``per``, e.g. the iterations counted) by place, most first."""
+        if not self.counts:
+            return "no host reads"
+        return "\n".join(f"{count / per:8.2f}  {op:<20} {place}" for (op, place), count in self.counts.most_common())
