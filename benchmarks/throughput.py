@@ -10,6 +10,8 @@
   was before the speed work (``MultiAgentMLP`` networks, three Adam optimisers), same batches;
 * **paper loop**: the paper recipe's whole training loop (one env, one update per step),
   compiled against eager, in updates/s, with each run's time split;
+* **host reads**: reads of tensor values on the host per iteration of the paper recipe's loop,
+  solo and as a population of 10 (:mod:`benchmarks.host_reads`): on a GPU each one waits;
 * **GPU** (when CUDA is present; :mod:`benchmarks.gpu`): the env at B = 65,536, the captured
   update, the loops solo and as populations of 10 and 80, and the projection of the paper's study.
 
@@ -42,6 +44,7 @@ from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
 from benchmarks.gpu import gpu_lines, projection_line
+from benchmarks.host_reads import host_read_lines
 from benchmarks.population import population_lines
 from benchmarks.reset import reset_lines
 from benchmarks.threed import threed_lines
@@ -341,6 +344,9 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
         text += "\n" + "\n".join(gpu_lines(frames=400 if cfg.quick else 3000))
     else:
         text += "\nGPU rows: no CUDA device here (benchmarks/gpu.py runs them where torch.cuda.is_available())"
+    # Host reads per iteration of the loop, what makes a GPU wait (benchmarks/host_reads.py).
+    for members in (1, 10):
+        text += "\n" + "\n".join(host_read_lines("paper", members, iterations=50 if cfg.quick else 200))
     # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
     text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
     # The 3-D step against the 2-D one, per UAV-step (benchmarks/threed.py).

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -62,13 +63,72 @@ def per_uav(batch: TensorDictBase, lead: int = 0) -> TensorDictBase:
     return out
 
 
-def episode_rows(episodes: TensorDictBase, first: int, frames: int) -> list[list[Any]]:
-    """:data:`EPISODE_COLUMNS` rows of finished episodes (``episodes``: their ``"episode"``
-    entries ``[E]``), numbered from ``first + 1``, all counted at ``frames``."""
-    values = torch.stack([episodes[k].double() for k in EPISODE_METRICS], -1).tolist()   # [E, M]
+def episode_values(episodes: TensorDictBase) -> torch.Tensor:
+    """The :data:`EPISODE_METRICS` of ``"episode"`` entries ``[*S]`` as one float64 tensor
+    ``[*S, M]`` (a copy, on their device)."""
+    return torch.stack([episodes[k].double() for k in EPISODE_METRICS], -1)
+
+
+def episode_rows(values: list[list[float]], first: int, frames: int) -> list[list[Any]]:
+    """:data:`EPISODE_COLUMNS` rows of finished episodes (``values``: their
+    :func:`episode_values`, one list per episode), numbered from ``first + 1``, all counted at
+    ``frames``."""
     return [[first + 1 + i, frames, round(v[0], 5), int(v[1]), int(v[2]), *(round(x, 4) for x in v[3:-1]), int(v[-1])]
             for i, v in enumerate(values)]
 
 
-__all__ = ["AgentwiseDone", "EPISODE_COLUMNS", "EPISODE_METRICS", "TRANSITION_KEYS", "agentwise_done", "episode_rows",
-           "per_uav"]
+@dataclass
+class Finished:
+    """The episodes that ended in one collector batch ``[worlds, steps]``: ``frames`` counted at
+    the batch's end, ``worlds`` the world each ended in, ``values`` their :func:`episode_values`
+    (world-major, as boolean indexing of the batch gives them), ``source`` what the batch was
+    added with."""
+
+    frames: int
+    worlds: list[int]
+    values: list[list[float]]
+    source: Any = None
+
+
+class PendingEpisodes:
+    """The finished episodes of the batches not yet written, kept on the batches' device.
+
+    Adding a batch reads nothing on the host (on a GPU, no synchronisation per batch); :meth:`flush`
+    reads every pending batch's episodes at once. ``slots`` bounds how many episodes are pending
+    (one per world and step), so a loop with an episode budget reads only when it could be spent.
+    """
+
+    def __init__(self) -> None:
+        self._batches: list[tuple[int, int, torch.Tensor, torch.Tensor, Any]] = []
+        self.slots = 0
+
+    def add(self, batch: TensorDictBase, frames: int, source: Any = None) -> None:
+        """Keep the episodes ending in ``batch`` (``[worlds, steps]``), counted at ``frames``."""
+        steps = batch.batch_size[-1] if batch.batch_dims > 1 else 1
+        done = batch.get(("next", "done")).reshape(-1).clone()  # a collector may hand out the same batch again
+        values = episode_values(batch.get(("next", "episode"))).reshape(done.shape[0], -1)
+        self._batches.append((frames, steps, done, values, source))
+        self.slots += done.numel()
+
+    def flush(self) -> list[Finished]:
+        """The pending batches that had finished episodes, in order (one host read for all)."""
+        if not self._batches:
+            return []
+        done = torch.cat([b[2] for b in self._batches])
+        where = done.nonzero().squeeze(-1)
+        values = torch.cat([b[3] for b in self._batches])[where].tolist()
+        where = where.tolist()
+        out, start, i = [], 0, 0
+        for frames, steps, batch_done, _, source in self._batches:
+            end, j = start + batch_done.numel(), i
+            while j < len(where) and where[j] < end:
+                j += 1
+            if j > i:
+                out.append(Finished(frames, [(w - start) // steps for w in where[i:j]], values[i:j], source))
+            start, i = end, j
+        self._batches, self.slots = [], 0
+        return out
+
+
+__all__ = ["AgentwiseDone", "EPISODE_COLUMNS", "EPISODE_METRICS", "Finished", "PendingEpisodes", "TRANSITION_KEYS",
+           "agentwise_done", "episode_rows", "episode_values", "per_uav"]

@@ -12,6 +12,11 @@ a CPU just as on a GPU, so the tests here can hold a training iteration to none:
         ...
     print(reads.total, reads.table())
 
+Reads inside a function that tensordict's ``CudaGraphModule`` records (the learners'
+``_captured_step``) are counted apart, in ``in_captured``: on a GPU they run while the graph is
+warmed up and recorded, and a replay never runs them (TorchRL's ``TanhNormal`` even skips its
+argument checks while a graph records).
+
 It cannot see ``Tensor.tolist()`` or ``.numpy()`` of a CPU tensor (they read memory without
 dispatching an operator), nor what runs inside a compiled graph (it runs such code eagerly, as
 the compiled paths' eager twins).
@@ -52,10 +57,14 @@ def _reads(func: Any, args: tuple, kwargs: dict) -> bool:
     return False
 
 
-def _place() -> str:
+# The functions CudaGraphModule records (flock_torchrl.policies: the learners' whole update).
+CAPTURED = ("_captured_step",)
+
+
+def _place(stack: traceback.StackSummary) -> str:
     """``package/file.py:line:function`` of the innermost frame in one of :data:`_PACKAGES`
     (outside this module), or ``"elsewhere"``."""
-    for frame in reversed(traceback.extract_stack()[:-3]):
+    for frame in reversed(stack):
         name = frame.filename.replace("\\", "/")
         if name.endswith("run/host_reads.py"):
             continue
@@ -69,17 +78,22 @@ def _place() -> str:
 class HostReads(TorchDispatchMode):
     """Counts host reads of tensor values while active (see the module's docstring).
 
-    ``counts``: a ``Counter`` of ``(operator, place)``; ``total``: their sum; ``table()``: one
-    line per place, most first."""
+    ``counts``: a ``Counter`` of ``(operator, place)`` of the reads outside :data:`CAPTURED`
+    functions; ``in_captured``: those inside them; ``total``: the sum of ``counts``;
+    ``table()``: one line per place, most first."""
 
-    def __init__(self) -> None:
+    def __init__(self, captured: tuple[str, ...] = CAPTURED) -> None:
         super().__init__()
+        self.captured = frozenset(captured)
         self.counts: collections.Counter[tuple[str, str]] = collections.Counter()
+        self.in_captured: collections.Counter[tuple[str, str]] = collections.Counter()
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
         if _reads(func, args, kwargs):
-            self.counts[(str(func.overloadpacket.__name__), _place())] += 1
+            stack = traceback.extract_stack()[:-1]
+            inside = any(frame.name in self.captured for frame in stack)
+            (self.in_captured if inside else self.counts)[(func.overloadpacket.__name__, _place(stack))] += 1
         return func(*args, **kwargs)
 
     @property
@@ -87,7 +101,9 @@ class HostReads(TorchDispatchMode):
         return sum(self.counts.values())
 
     def table(self, per: int = 1) -> str:
-        """The counts (divided by ``per``, e.g. the iterations counted) by place, most first."""
-        if not self.counts:
-            return "no host reads"
-        return "\n".join(f"{count / per:8.2f}  {op:<20} {place}" for (op, place), count in self.counts.most_common())
+        """The counts (divided by ``per``, e.g. the iterations counted) by place, most first; the
+        reads inside captured functions after them, marked."""
+        lines = [f"{count / per:8.2f}  {op:<20} {place}" for (op, place), count in self.counts.most_common()]
+        lines += [f"{count / per:8.2f}  {op:<20} {place} (captured)"
+                  for (op, place), count in self.in_captured.most_common()]
+        return "\n".join(lines) or "no host reads"

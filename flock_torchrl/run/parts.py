@@ -132,12 +132,35 @@ def policy_capture(cfg: TrainConfig) -> dict[str, int] | None:
     return {"warmup": CUDAGRAPH_WARMUP} if cfg.cudagraphs else None
 
 
+class UnreadCursorStorage(LazyTensorStorage):
+    """TorchRL's ``LazyTensorStorage`` that does not read its write cursor on the host at every
+    write. TorchRL records the last index written (for its slice samplers, which these buffers do
+    not use) with an ``.item()`` of the index tensor: on a GPU, a synchronisation per batch. Here
+    the index tensor is kept and read only if the cursor is asked for."""
+
+    _unread_cursor: torch.Tensor | None = None
+
+    def _set_last_cursor(self, cursor: Any) -> None:
+        if isinstance(cursor, torch.Tensor) and not self._compilable:
+            self._last_cursor, self._unread_cursor = cursor, cursor
+            return
+        self._unread_cursor = None
+        super()._set_last_cursor(cursor)
+
+    @property
+    def _last_cursor_index(self) -> int | torch.Tensor | None:
+        if self._unread_cursor is not None:
+            cursor, self._unread_cursor = self._unread_cursor, None
+            super()._set_last_cursor(cursor)
+        return super()._last_cursor_index
+
+
 def replay_buffer(cfg: TrainConfig, n_uavs: int, device: torch.device, **kwargs: Any) -> TensorDictReplayBuffer:
     """Swarm transitions of ``n_uavs`` UAVs (1: single-UAV ones): ``batch_size / n_uavs`` of them
-    per sample and ``buffer_size / n_uavs`` held, rounded up."""
+    per sample and ``buffer_size / n_uavs`` held, rounded up (:class:`UnreadCursorStorage`)."""
     batch = max(1, math.ceil(cfg.algo.batch_size / n_uavs))
     capacity = max(batch, math.ceil(cfg.algo.buffer_size / n_uavs))
-    return TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device), batch_size=batch, **kwargs)
+    return TensorDictReplayBuffer(storage=UnreadCursorStorage(capacity, device=device), batch_size=batch, **kwargs)
 
 
 def buffer_state(buffer: TensorDictReplayBuffer) -> dict[str, Any]:
@@ -249,5 +272,5 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "buffer_state", "evaluation_row", "policy_capture", "restore_rng", "rng_state",
+__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluation_row", "policy_capture", "restore_rng", "rng_state",
            "make_collectors", "make_env", "make_envs", "replay_buffer", "restore_buffer", "write_checkpoint"]

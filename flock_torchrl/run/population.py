@@ -124,7 +124,12 @@ class PopulationTraining(Training):
         self.counters["iterations"] += 1
         with self.split.timer("members"):
             for env, batch in zip(self.envs, batches):  # one per swarm size
-                self._episode_rows(env, batch)
+                self.pending.add(batch, self.counters["frames"], source=env)
+            budget = self.cfg.experiment.max_episodes
+            # Each member holds 1/K of the pending worlds' steps: count when one could spend its budget.
+            live = [e for e, f in zip(self.member_episodes, self.final) if f is None]
+            if budget and live and max(live) + self.pending.slots // self.k >= budget:
+                self._tally_episodes()
         self.learner.on_frames(frames)
         stats, n_updates = self._learn(batches)
         self.counters["updates"] += n_updates
@@ -139,21 +144,18 @@ class PopulationTraining(Training):
         rows = batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1)
         return rows.transpose(0, 1).contiguous()
 
-    def _episode_rows(self, env: PopulationEnv, batch: TensorDictBase) -> None:
-        """Each member's finished episodes in ``batch`` (of ``env``) as rows of its own episode
-        log (one tensor per column, the member of each episode from its world's index)."""
-        done = batch.get(("next", "done")).squeeze(-1)               # [K * B, T]
-        if bool(done.any()):
-            world, _ = done.nonzero(as_tuple=True)                   # world-major, as the solo log's rows
-            episodes = batch.get(("next", "episode"))[done]
-            member = env.member_of(world)
-            for k in member.unique().tolist():                       # members with finished episodes
-                mine = episodes[member == k]
+    def _tally_episodes(self) -> None:
+        """Each member's episodes pending since the last tally as rows of its own episode log
+        (the member of each episode from its world's index)."""
+        for finished in self.pending.flush():
+            member = finished.source.member_of(torch.tensor(finished.worlds)).tolist()
+            for k in sorted(set(member)):                                    # members with finished episodes
+                mine = [v for m, v in zip(member, finished.values) if m == k]
                 first = self.member_episodes[k]
-                self.member_episodes[k] += mine.shape[0]
+                self.member_episodes[k] += len(mine)
                 if self.final[k] is not None:
                     continue  # a final member's later episodes are not its run's
-                rows = episode_rows(mine, first, self.counters["frames"])
+                rows = episode_rows(mine, first, finished.frames)
                 self.member_logs[k].write(rows)
                 self.member_recent[k] = (self.member_recent[k] + [(r[2], bool(r[3])) for r in rows])[-100:]
         self.counters["episodes"] = min(self.member_episodes)
@@ -178,6 +180,7 @@ class PopulationTraining(Training):
 
     # ---------------------------------------------------------------- logging, evaluation
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
+        self._tally_episodes()
         self.learner.check()
         log: dict[str, float] = {}
         for k, seed in enumerate(self.seeds):

@@ -26,7 +26,7 @@ from tensordict import TensorDictBase
 from ..config import TrainConfig
 from ..policies.checkpoint import LAST
 from ..policies.learners import make_learner
-from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, agentwise_done, episode_rows, per_uav
+from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, PendingEpisodes, agentwise_done, episode_rows, per_uav
 from .parts import (Learner, TrainResult, buffer_state, evaluation_row, make_collectors, make_env, make_envs,
                     replay_buffer, restore_buffer, restore_rng, rng_state, write_checkpoint)
 from .run_folder import EpisodeLog, logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
@@ -52,6 +52,7 @@ class Training:
         self.start = time.perf_counter()
         self.progress: Progress | None = None
         self.updated = False              # whether this process has run an update yet
+        self.pending = PendingEpisodes()  # episodes ended in batches whose rows are not written yet
 
     def _build(self, payload: dict | None) -> None:
         cfg, exp = self.cfg, self.cfg.experiment
@@ -145,10 +146,11 @@ class Training:
         frames = sum(batch.numel() for batch in batches)
         self.counters["frames"] += frames
         self.counters["iterations"] += 1
-        rows = [row for batch in batches for row in self._finished_episodes(batch)]
-        if rows:
-            self.episode_log.write(rows)
-            self.recent = (self.recent + [(r[2], bool(r[3])) for r in rows])[-100:]
+        for batch in batches:
+            self.pending.add(batch, self.counters["frames"])
+        budget = self.cfg.experiment.max_episodes
+        if budget and self.counters["episodes"] + self.pending.slots >= budget:  # it may be spent: count
+            self._tally_episodes()
         self.learner.on_frames(frames)
         stats, n_updates = self._learn(batches)
         self.counters["updates"] += n_updates
@@ -186,14 +188,15 @@ class Training:
         first, self.updated = not self.updated, True
         return "compile" if self.cfg.compile_loss and first else "update"
 
-    def _finished_episodes(self, batch: TensorDictBase) -> list[list[Any]]:
-        """CSV rows for the episodes that ended in this batch (frames counted at batch end)."""
-        done = batch.get(("next", "done")).squeeze(-1)
-        if not done.any():
-            return []
-        rows = episode_rows(batch.get(("next", "episode"))[done], self.counters["episodes"], self.counters["frames"])
-        self.counters["episodes"] += len(rows)
-        return rows
+    def _tally_episodes(self) -> None:
+        """Write the rows of the episodes pending since the last tally and count them (the loop
+        reads the batches' episodes here, at logging, checkpoints and an episode budget, not
+        after every batch: on a GPU an iteration then never waits for the device)."""
+        for finished in self.pending.flush():
+            rows = episode_rows(finished.values, self.counters["episodes"], finished.frames)
+            self.counters["episodes"] += len(rows)
+            self.episode_log.write(rows)
+            self.recent = (self.recent + [(r[2], bool(r[3])) for r in rows])[-100:]
 
     # ---------------------------------------------------------------- logs, evaluation
     def _open_logs(self, resumed: bool) -> None:
@@ -218,6 +221,7 @@ class Training:
         """What a subclass restores from a checkpoint beyond the counters and evaluations."""
 
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
+        self._tally_episodes()
         self.learner.check()  # a captured update's finite-loss flags, read where the host reads anyway
         log = {f"train/{k}": float(v) for k, v in stats.items()}
         if self.recent:
@@ -295,6 +299,7 @@ class Training:
         return state
 
     def _save(self) -> Path:
+        self._tally_episodes()
         self.learner.check()  # never a checkpoint of a diverged learner
         self.counters["seconds"] = time.perf_counter() - self.start
         path = write_checkpoint(self._state(), self.ckpt_path)

@@ -1,0 +1,111 @@
+"""Host reads per training iteration: what makes a GPU wait for the host, counted on any device.
+
+    .venv/bin/python -m benchmarks.host_reads [--iterations 200] [--recipe paper] [--members 1] [-- override ...]
+
+Trains Policy3-G under ``--recipe`` with ``cudagraphs=true`` (the captured update; a pass-through
+on a CPU) and the env's static-shape step run eagerly (the step ``compile=true`` compiles, so
+that :class:`~flock_torchrl.run.host_reads.HostReads` sees inside it), warms up for the
+recipe's random frames plus 20 iterations, counts ``--iterations`` iterations of the loop
+(collection, buffer, sampling, update, bookkeeping; logging, evaluation and checkpoints are
+off) and prints the reads per iteration by the line that made them. Reads inside the captured
+update are listed apart: a CUDA graph's replay never makes them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import tempfile
+from pathlib import Path
+
+if not __package__:  # `python benchmarks/host_reads.py`: the repository's root, so `benchmarks` imports
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from flock_torchrl.config import TrainConfig  # noqa: E402
+from flock_torchrl.run.host_reads import HostReads  # noqa: E402
+from flock_torchrl.run.population import PopulationTraining  # noqa: E402
+from flock_torchrl.run.trainer import Training, make_train_config  # noqa: E402
+from flock_torchrl.world.step import transition  # noqa: E402
+
+WARMUP = 20  # iterations after the random frames before counting: every capture's warm-up is over
+
+
+def counted(cls: type[Training]) -> type[Training]:
+    """``cls`` whose envs step by the static-shape step run eagerly, and whose loop counts host
+    reads from iteration ``start`` on (``cls.reads``, ``cls.counted``)."""
+
+    class Counted(cls):
+        start = 0
+        reads: HostReads | None = None
+        iterations = 0
+
+        def _build(self, payload):
+            super()._build(payload)
+            for env in self.envs:
+                env._transition = functools.partial(transition, static_shapes=True)
+
+        def _consume(self, batches):
+            if self.counters["iterations"] == type(self).start:
+                type(self).reads = HostReads().__enter__()
+            out = super()._consume(batches)
+            if type(self).reads is not None:
+                type(self).iterations += 1
+            return out
+
+        def _loop(self, schedule, signals):
+            try:
+                super()._loop(schedule, signals)
+            finally:
+                if type(self).reads is not None:
+                    type(self).reads.__exit__(None, None, None)
+
+    return Counted
+
+
+def count_reads(recipe: str = "paper", members: int = 1, iterations: int = 200,
+                overrides: tuple[str, ...] = ()) -> tuple[HostReads, int]:
+    """``(the reads counted, the iterations they span)`` of a short run (see the module's docstring)."""
+    base = make_train_config("policy3_g", recipe, ["progress=false", "logger=none", "reading=paper_fit",
+                                                   *overrides])
+    exp = TrainConfig.from_config(base).experiment
+    per_iteration = exp.num_envs * exp.steps_per_batch
+    start = -(-exp.init_random_frames // per_iteration) + WARMUP
+    frames = (start + iterations) * per_iteration
+    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, [
+        "progress=false", "logger=none", "reading=paper_fit", "cudagraphs=true", f"population={members}",
+        # Never logged (0 would log every batch, reading the statistics each iteration).
+        f"experiment.max_frames={frames}", "experiment.max_episodes=0", f"experiment.log_every_frames={2 * frames}",
+        "experiment.eval_every_frames=0", "experiment.checkpoint_every_frames=0", "experiment.eval_episodes=1",
+        *overrides]))
+    cls = counted(PopulationTraining if members > 1 else Training)
+    cls.start = start
+    with tempfile.TemporaryDirectory() as folder:
+        cls(cfg, Path(folder) / "run").run()
+    return cls.reads, cls.iterations
+
+
+def host_read_lines(recipe: str = "paper", members: int = 1, iterations: int = 200,
+                    overrides: tuple[str, ...] = ()) -> list[str]:
+    reads, n = count_reads(recipe, members, iterations, overrides)
+    captured = sum(reads.in_captured.values())
+    shown = " ".join(overrides)
+    head = (f"host reads per iteration, {recipe} recipe, {'solo' if members == 1 else f'population of {members}'}"
+            f"{', ' + shown if shown else ''}: {reads.total / n:.2f} ({captured / n:.2f} more inside the captured "
+            f"update, which a CUDA graph's replay never makes); {n} iterations counted")
+    return [head] + ["  " + line for line in reads.table(per=n).splitlines()]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--recipe", default="paper")
+    parser.add_argument("--members", type=int, default=1)
+    parser.add_argument("--iterations", type=int, default=200)
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides of the run (e.g. reset_pool=64)")
+    args = parser.parse_args()
+    for line in host_read_lines(args.recipe, args.members, args.iterations, tuple(args.overrides)):
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

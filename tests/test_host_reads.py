@@ -1,0 +1,92 @@
+"""Host reads (what makes a GPU wait): the counter itself, the pending episode rows, and the
+training loop's own code, which reads nothing per iteration."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from flock_torchrl.run.batches import EPISODE_METRICS, PendingEpisodes, episode_values
+from flock_torchrl.run.host_reads import HostReads
+
+
+def test_the_counter_sees_each_kind_of_read_and_no_arithmetic():
+    x = torch.arange(6.0) - 2.5
+    mask = x > 0
+    with HostReads() as reads:
+        torch.where(mask, x, -x).cumsum(0).amax()
+        x[torch.tensor([1, 2])]            # an integer index reads nothing
+    assert reads.total == 0
+    with HostReads() as reads:
+        bool(mask.any())
+        x.sum().item()
+        x[mask]
+        mask.nonzero()
+        torch.equal(x, x)
+        torch.unique(x)
+    assert reads.total == 6
+    assert {op for op, _ in reads.counts} == {"_local_scalar_dense", "index", "nonzero", "equal", "_unique2"}
+    assert all(place.startswith("tests/") or place == "elsewhere" for _, place in reads.counts)
+
+
+def test_reads_inside_a_captured_step_are_counted_apart():
+    mask = torch.tensor([True, False])
+
+    def _captured_step():
+        return bool(mask.any())
+
+    with HostReads() as reads:
+        _captured_step()
+        bool(mask.all())
+    assert reads.total == 1 and sum(reads.in_captured.values()) == 1
+    assert "(captured)" in reads.table()
+
+
+def _batch(done: list[list[bool]], first: float) -> TensorDict:
+    """A collector batch ``[worlds, steps]`` whose episode metrics count up from ``first``."""
+    worlds, steps = len(done), len(done[0])
+    count = worlds * steps
+    episode = {k: (first + i + torch.arange(count, dtype=torch.float64)).reshape(worlds, steps).float()
+               for i, k in enumerate(EPISODE_METRICS)}
+    return TensorDict({"next": {"done": torch.tensor(done).unsqueeze(-1),
+                                "episode": TensorDict(episode, [worlds, steps])}}, [worlds, steps])
+
+
+def test_pending_episodes_give_the_rows_boolean_indexing_gives_in_order():
+    batches = [_batch([[False, True, False], [True, False, True]], 0.0),
+               _batch([[False, False, False], [False, False, False]], 100.0),
+               _batch([[False, False, True], [False, False, False]], 200.0)]
+    pending = PendingEpisodes()
+    with HostReads() as reads:
+        for frames, batch in zip((6, 12, 18), batches):
+            pending.add(batch, frames, source=frames // 6)
+    assert reads.total == 0 and pending.slots == 18
+    finished = pending.flush()
+    assert [f.frames for f in finished] == [6, 18] and [f.source for f in finished] == [1, 3]
+    assert finished[0].worlds == [0, 1, 1] and finished[1].worlds == [0]
+    for f, batch in zip(finished, (batches[0], batches[2])):
+        done = batch.get(("next", "done")).squeeze(-1)
+        assert f.values == episode_values(batch.get(("next", "episode"))[done]).tolist()
+    assert pending.slots == 0 and pending.flush() == []
+
+
+def test_a_pending_batch_is_a_copy_of_what_the_collector_may_reuse():
+    batch = _batch([[True]], 5.0)
+    pending = PendingEpisodes()
+    pending.add(batch, 1)
+    batch.get(("next", "done")).zero_()
+    batch.get(("next", "episode"))["return"].fill_(-1.0)
+    (finished,) = pending.flush()
+    assert finished.values[0][0] == 5.0
+
+
+@pytest.mark.parametrize("members", [1, 2])
+def test_the_training_loop_itself_reads_nothing_per_iteration(members):
+    """Collection, the replay buffer, sampling, the update and the episode bookkeeping of a solo
+    run and a population read no tensor on the host between logs; what is left is the env's
+    resets (TorchRL's ``maybe_reset`` and the worlds drawn anew)."""
+    from benchmarks.host_reads import count_reads
+
+    reads, iterations = count_reads("tiny", members, iterations=12, overrides=("scenario.max_steps=8",))
+    assert iterations == 12
+    loop = [place for _, place in reads.counts if not place.startswith(("flock_torchrl/world/", "torchrl/envs/"))]
+    assert not loop, reads.table()
