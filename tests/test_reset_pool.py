@@ -305,12 +305,20 @@ def test_bad_values_are_refused():
         pooled.set_state(state)
 
 
-def test_a_tiny_training_run_with_the_pool(tmp_path):
+def test_a_tiny_training_run_with_the_pool_resumes_bit_for_bit(tmp_path):
     from flock_torchrl.policies.checkpoint import load_checkpoint
 
-    cfg = make_train_config("policy3_g", "tiny", ["scenario.max_steps=10", "progress=false", "logger=csv",
-                                                 "experiment.eval_every_frames=0", "reset_pool=8"])
-    result = train(cfg, tmp_path / "run")
-    ckpt = load_checkpoint(result.checkpoint)
-    assert ckpt["counters"]["frames"] >= 160 and ckpt["counters"]["episodes"] >= 8
-    assert ckpt["env_state"]["reset_pool"]["worlds"]["position"].shape == (8, 5, 2)
+    def tiny(*overrides: str):
+        return make_train_config("policy3_g", "tiny", ["scenario.max_steps=10", "progress=false", "logger=csv",
+                                                      "experiment.eval_every_frames=0", "reset_pool=8", *overrides])
+
+    whole = load_checkpoint(train(tiny(), tmp_path / "whole").checkpoint)
+    assert whole["counters"]["frames"] == 160 and whole["counters"]["episodes"] >= 8
+    assert whole["env_state"]["reset_pool"]["worlds"]["position"].shape == (8, 5, 2)
+    assert train(tiny("experiment.max_frames=96"), tmp_path / "split").frames == 96
+    resumed = load_checkpoint(train(tiny("resume=true"), tmp_path / "split").checkpoint)
+    for key in ("frames", "episodes", "updates"):
+        assert resumed["counters"][key] == whole["counters"][key], key
+    for key, value in whole["actor"].items():
+        assert torch.equal(value, resumed["actor"][key]), key
+    assert (tmp_path / "whole" / "episodes.csv").read_text() == (tmp_path / "split" / "episodes.csv").read_text()
