@@ -303,6 +303,9 @@ def test_bad_values_are_refused():
     state["reset_pool"]["next"] = torch.tensor([9])
     with pytest.raises(ValueError, match="'next'"):
         pooled.set_state(state)
+    state["reset_pool"].update(next=torch.tensor([4]), calls=0)  # 4 taken in no call: inconsistent
+    with pytest.raises(ValueError, match="run dry"):
+        pooled.set_state(state)
 
 
 def test_a_tiny_training_run_with_the_pool_resumes_bit_for_bit(tmp_path):
@@ -322,3 +325,17 @@ def test_a_tiny_training_run_with_the_pool_resumes_bit_for_bit(tmp_path):
     for key, value in whole["actor"].items():
         assert torch.equal(value, resumed["actor"][key]), key
     assert (tmp_path / "whole" / "episodes.csv").read_text() == (tmp_path / "split" / "episodes.csv").read_text()
+
+
+@pytest.mark.slow  # a compilation (~15 s); the fast tests check the layout kept on the eager step
+def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
+    # The reserve's worlds are written in the world's own layout: the compiled step, which reads
+    # its outputs back, sees the same strides after a reset from the reserve as after a step.
+    env = FlockingEnv("train", num_envs=4, seed=2, policy_id="policy3_g", compile_step=True, check_actions=False,
+                      max_steps=2, reset_pool=8)
+    gen = torch.Generator().manual_seed(0)
+    td = env.step_and_maybe_reset(act(env, env.reset(), gen))[1]  # compiles
+    with torch.compiler.set_stance("fail_on_recompile"):
+        for _ in range(5):
+            out, td = env.step_and_maybe_reset(act(env, td, gen))
+    assert out["next", "done"].all() and int(env._reserve_next[0]) == 4  # worlds taken at calls 1, 3 and 5

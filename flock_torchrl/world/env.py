@@ -247,7 +247,10 @@ class FlockingEnv(EnvBase):
         return noise_draws(self.cfg, count, self._generator, self.device)
 
     def _fresh_worlds(self, index: torch.Tensor | None = None) -> TensorDict:
-        """New episodes for the worlds ``index`` (``None``: all): spawned (Eq. 30), at rest, sensed."""
+        """New episodes for the worlds ``index`` (``None``: all): spawned (Eq. 30), at rest, sensed.
+        A world's episode depends on its index only through the generator it draws from (a
+        population's member), so the reserve (``reset_pool``) draws with an index repeating a
+        member's first world as often as it needs worlds."""
         layout = self._draw_layout(index)
         count = self.num_envs if index is None else int(index.numel())
         dev = self.device
@@ -362,7 +365,9 @@ class FlockingEnv(EnvBase):
         mask, :meth:`place` and :meth:`subset` (whose new env has no reserve) draw or set worlds
         as without one and leave the reserve as it is; :meth:`set_seed` empties it (the next call
         here draws it anew, so the same seed gives the same episodes); :meth:`get_state` and
-        :meth:`set_state` carry it, its pointer and the calls since its refill."""
+        :meth:`set_state` carry it, its pointer and the calls since its refill. A TorchRL
+        ``TransformedEnv`` around this env resets through its own ``maybe_reset`` (a masked
+        ``reset``), so there the reserve goes unused."""
         if not self.reset_pool:
             return super().maybe_reset(tensordict)
         start = time.perf_counter()
@@ -521,6 +526,9 @@ class FlockingEnv(EnvBase):
         if not isinstance(calls, int) or isinstance(calls, bool) or not 0 <= calls <= self.reset_pool // per_member:
             raise ValueError(f"env state: reset_pool 'calls' must be an integer in [0, "
                              f"{self.reset_pool // per_member}], got {calls!r}")
+        if int(pointer.max()) + (self.reset_pool // per_member - calls) * per_member > self.reset_pool:
+            raise ValueError(f"env state: reset_pool 'next' ({pointer.tolist()}) is more than {calls} call(s) since "
+                             "the refill can have taken: the reserve would run dry")
         worlds.batch_size = torch.Size([count])
         return worlds, pointer.to(self.device).clone(), calls
 
@@ -569,7 +577,8 @@ class FlockingEnv(EnvBase):
         as it would have here, S4 noise draws aside: their shape follows the batch).
 
         ``index``: world indices (integers, in the order wanted), or a boolean mask with one
-        flag per world (the worlds where it is ``True``, in order)."""
+        flag per world (the worlds where it is ``True``, in order). The new env has no reserve of
+        fresh worlds (``reset_pool = 0``)."""
         index = torch.as_tensor(index, device=self.device)
         if index.dtype == torch.bool:
             if index.numel() != self.num_envs:
