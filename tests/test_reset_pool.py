@@ -339,3 +339,18 @@ def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
         for _ in range(5):
             out, td = env.step_and_maybe_reset(act(env, td, gen))
     assert out["next", "done"].all() and int(env._reserve_next[0]) == 4  # worlds taken at calls 1, 3 and 5
+
+
+@pytest.mark.parametrize("extra", ["population=2", "experiment.swarm_sizes=[3,5]"])
+def test_population_and_mixed_size_runs_take_the_pool(tmp_path, extra):
+    from flock_torchrl.policies.checkpoint import load_checkpoint
+
+    cfg = make_train_config("policy3_g", "tiny", ["scenario.max_steps=10", "progress=false", "logger=none",
+                                                 "experiment.eval_every_frames=0", "reset_pool=8", extra])
+    result = train(cfg, tmp_path / "run")
+    assert result.frames == 160 and result.episodes >= 8
+    ckpt = load_checkpoint(result.checkpoint)
+    states = ckpt["env_state"] if isinstance(ckpt["env_state"], list) else [ckpt["env_state"]]
+    # a population: a reserve of 8 per member (2 x 4 worlds); mixed sizes: one per size (2 worlds each)
+    assert [s["reset_pool"]["worlds"]["goal"].shape[0] for s in states] == ([16] if extra.startswith("pop") else
+                                                                            [8, 8])
