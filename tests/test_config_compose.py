@@ -243,6 +243,8 @@ def test_every_train_composition_keeps_the_values_main_composed(every):
         # and the captured update's switch, off, which a resume may change
         assert tree.pop("cudagraphs") is False, name
         tree["resumable"].remove("cudagraphs")
+        # and the reserve of fresh worlds, off
+        assert tree.pop("reset_pool") == 0, name
         assert set(tree) == set(entry), name
         for key, digest in entry.items():
             assert tree[key] == nodes[digest], f"{name}: {key}"

@@ -107,6 +107,7 @@ class TrainConfig(RunOptions, WorldApp):
     resumable: List[str] = field(default_factory=list)   # keys a resume may change (a trailing . = a group)
     population: int = 1                      # members trained together, seeds seed .. seed + population - 1
     cudagraphs: bool = False                 # the update as one captured CUDA graph (sac, ddpg; CPU: eager)
+    reset_pool: int = 0                      # P > 0: a reserve of P fresh worlds per env (FlockingEnv)
 
     def checked_fields(self, p: str) -> dict[str, Any]:
         fields = dict(super().checked_fields(p))  # the run options, then the world
@@ -127,6 +128,10 @@ class TrainConfig(RunOptions, WorldApp):
         choice("compile", str(self.compile).lower(), COMPILE_MODES)
         choice("objective", self.objective, OBJECTIVES)
         self._check_population(algo, experiment)
+        count("reset_pool", self.reset_pool, 0)
+        if 0 < self.reset_pool < experiment.num_envs:
+            reject("reset_pool", f"a reserve of fresh worlds needs at least num_envs ({experiment.num_envs}) of "
+                                 f"them (one step can reset every world), got {self.reset_pool}; 0 turns it off")
         if self.cudagraphs and algo.name not in ("sac", "ddpg"):
             reject("cudagraphs", f"the captured update is SAC's and DDPG's; {policy.id} trains with {algo.name}: "
                                  "use cudagraphs=false")

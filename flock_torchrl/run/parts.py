@@ -83,7 +83,7 @@ def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, p
     if os.getpid() != parent:
         ignore_stop_signals()
     return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
-                       compile_step=cfg.compile_step, check_actions=False)
+                       compile_step=cfg.compile_step, check_actions=False, reset_pool=cfg.reset_pool)
 
 
 def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:

@@ -79,6 +79,18 @@ class FlockingEnv(EnvBase):
             into the world, a done world keeps moving) and only checks the action's key, shape
             and floating dtype (Python-side, no synchronisation), casts it to float32 on the
             env's device and clips it to the action box, so a GPU step never waits for the host.
+        reset_pool: ``0`` (the default): a done world is reset by drawing its new episode there and
+            then, as TorchRL's ``maybe_reset`` asks (reading the done flags on the host, and
+            rejection sampling with a data-dependent number of rounds). ``P > 0``: the env keeps a
+            reserve of ``P`` freshly drawn worlds (per member in a population; ``P >= num_envs``,
+            the worlds per member there), and :meth:`maybe_reset` (what ``step_and_maybe_reset``
+            and TorchRL's collectors call) hands the done worlds the next unused ones, in world
+            order, with tensor operations only: no host read, no branch on a value. The reserve
+            is refilled on the host, after every ``P // num_envs`` calls (the most it can take
+            before it could run dry): one read of how many were used, then one batched draw of that
+            many. Reproducible from the seed, and :meth:`get_state` carries the reserve, but the
+            episodes differ from ``reset_pool=0`` once a world was reset (the draws happen in
+            another order). See :meth:`maybe_reset` for what else keeps or refills the reserve.
         **overrides: any scenario field, e.g. ``tau_v=0.5``, ``n_uavs=9``.
 
     Example:
@@ -96,7 +108,7 @@ class FlockingEnv(EnvBase):
     def __init__(self, scenario: ScenarioConfig | str = "train", num_envs: int = 1,
                  device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
                  policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
-                 check_actions: bool = True, **overrides: Any) -> None:
+                 check_actions: bool = True, reset_pool: int = 0, **overrides: Any) -> None:
         if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
             cfg = scenario if scenario.is_checked else scenario.check()  # checked once
         elif isinstance(scenario, (str, ScenarioConfig)):  # a name: the one helper composes it (Hydra)
@@ -110,7 +122,15 @@ class FlockingEnv(EnvBase):
         if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         check_seed(seed)
+        if not isinstance(reset_pool, int) or isinstance(reset_pool, bool) or reset_pool < 0:
+            raise ValueError(f"reset_pool must be an integer >= 0 (0: no reserve of fresh worlds), got {reset_pool!r}")
         super().__init__(device=torch_device(device), batch_size=torch.Size([num_envs]))
+        self.reset_pool = reset_pool
+        members, per_member = self._reserve_groups()
+        if reset_pool and reset_pool < per_member:
+            worlds = "num_envs" if members == 1 else "worlds per member"
+            raise ValueError(f"reset_pool must be 0 or at least the {worlds} ({per_member}): one step can reset "
+                             f"every world, got {reset_pool}")
         self.cfg = cfg
         self.num_envs = num_envs
         self.n_agents = cfg.n_uavs
@@ -129,6 +149,11 @@ class FlockingEnv(EnvBase):
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
         self.world = self._empty_world()
+        if reset_pool:  # empty (all used) until the first maybe_reset fills it
+            self._reserve = self._empty_world(sensed=True)[torch.zeros(members * reset_pool, dtype=torch.long,
+                                                                       device=self.device)]
+            self._reserve_next = torch.zeros(members, dtype=torch.long, device=self.device)
+            self._empty_reserve()
         self._sensed_once = False
         self._restored = False
         self.busy_seconds = 0.0  # wall time spent in reset and step (a trainer's time split reads it)
@@ -222,7 +247,10 @@ class FlockingEnv(EnvBase):
         return noise_draws(self.cfg, count, self._generator, self.device)
 
     def _fresh_worlds(self, index: torch.Tensor | None = None) -> TensorDict:
-        """New episodes for the worlds ``index`` (``None``: all): spawned (Eq. 30), at rest, sensed."""
+        """New episodes for the worlds ``index`` (``None``: all): spawned (Eq. 30), at rest, sensed.
+        A world's episode depends on its index only through the generator it draws from (a
+        population's member), so the reserve (``reset_pool``) draws with an index repeating a
+        member's first world as often as it needs worlds."""
         layout = self._draw_layout(index)
         count = self.num_envs if index is None else int(index.numel())
         dev = self.device
@@ -314,6 +342,89 @@ class FlockingEnv(EnvBase):
             self.world = self.world.apply(lambda old, new: old.index_put((index,), new), fresh)
         return self._output()
 
+    # ------------------------------------------------------------------ the reserve (reset_pool > 0)
+    def _reserve_groups(self) -> tuple[int, int]:
+        """``(groups, worlds per group)`` of the reserve: one group here, a member's worlds in a
+        population (each member's done worlds take from that member's own reserve)."""
+        return 1, int(self.batch_size[0])
+
+    def maybe_reset(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Reset the done worlds of ``tensordict`` (what ``step_and_maybe_reset`` returns next).
+
+        With ``reset_pool = 0``: TorchRL's ``maybe_reset`` (the done flags read on the host, and
+        a masked ``reset`` drawing the new episodes there and then). With ``reset_pool = P``: the
+        done worlds take the next unused worlds of the reserve, in world order (world ``i`` the
+        ``pointer + (done worlds up to i) - 1``-th), and the returned tensordict holds their
+        outputs where TorchRL's masked reset would put them (the same keys, shapes and dtypes;
+        the other worlds' entries unchanged), all in tensor operations: no host read. Before a
+        call that could take more worlds than the reserve has left (after ``P // B`` calls for
+        ``B`` worlds), the reserve is refilled on the host: the used worlds' count read once, the
+        unused kept in order and that many new ones drawn after them from the env's generator.
+
+        The reserve serves this method only: a full ``reset()``, a ``reset`` with a ``"_reset"``
+        mask, :meth:`place` and :meth:`subset` (whose new env has no reserve) draw or set worlds
+        as without one and leave the reserve as it is; :meth:`set_seed` empties it (the next call
+        here draws it anew, so the same seed gives the same episodes); :meth:`get_state` and
+        :meth:`set_state` carry it, its pointer and the calls since its refill. A TorchRL
+        ``TransformedEnv`` around this env resets through its own ``maybe_reset`` (a masked
+        ``reset``), so there the reserve goes unused."""
+        if not self.reset_pool:
+            return super().maybe_reset(tensordict)
+        start = time.perf_counter()
+        try:
+            return self._reset_from_reserve(tensordict)
+        finally:
+            self.busy_seconds += time.perf_counter() - start
+
+    def _reset_from_reserve(self, tensordict: TensorDictBase) -> TensorDictBase:
+        done = tensordict.get("done", None)
+        if done is None:  # as TorchRL's any_done: no done flags, nothing to reset
+            return tensordict
+        members, per_member = self._reserve_groups()
+        pool = self.reset_pool
+        if (self._reserve_calls + 1) * per_member > pool:
+            self._refill_reserve()
+        done = done.reshape(members, per_member).to(self.device)
+        taken = done.long().cumsum(-1)                                                   # [K, B]
+        first = torch.arange(members, device=self.device)[:, None] * pool
+        slot = (self._reserve_next[:, None] + taken - 1).clamp(0, pool - 1) + first      # never past the reserve
+        fresh = self._reserve[slot.reshape(-1)]
+        mask = done.reshape(-1)
+
+        def put(old: torch.Tensor, new: torch.Tensor) -> torch.Tensor:
+            # Out of place, in the world's own layout (the compiled step reads it back as it wrote it).
+            return torch.where(mask.reshape(-1, *(1,) * (old.ndim - 1)), new, old, out=torch.empty_like(old))
+
+        self.world = self.world.apply(put, fresh)
+        self._reserve_next.add_(taken[:, -1])
+        self._reserve_calls += 1
+        self._restored = False
+        # As TorchRL's reset with a "_reset" mask merges its output (torchrl.envs.utils._update_during_reset).
+        return tensordict.where(~mask, other=self._output(), out=tensordict, pad=0, update_batch_size=True)
+
+    def _refill_reserve(self) -> None:
+        """Keep the reserve's unused worlds, in order, and draw as many new ones after them."""
+        members, per_member = self._reserve_groups()
+        pool, dev = self.reset_pool, self.device
+        used = [int(n) for n in self._reserve_next.cpu()]  # the reserve's one read of the device
+        if sum(used):
+            # One draw for every member's used worlds (a population reads the member off the world index).
+            index = torch.cat([torch.full((n,), k * per_member, dtype=torch.long) for k, n in enumerate(used) if n])
+            fresh = self._fresh_worlds(index.to(dev))
+            order, drawn = [], members * pool
+            for k, n in enumerate(used):  # members, not worlds
+                order += [torch.arange(k * pool + n, (k + 1) * pool), torch.arange(drawn, drawn + n)]
+                drawn += n
+            self._reserve = torch.cat([self._reserve, fresh])[torch.cat(order).to(dev)]
+        self._reserve_next.zero_()
+        self._reserve_calls = 0
+
+    def _empty_reserve(self) -> None:
+        """Mark every reserve world used: the next :meth:`maybe_reset` draws the reserve anew."""
+        members, per_member = self._reserve_groups()
+        self._reserve_next.fill_(self.reset_pool)
+        self._reserve_calls = self.reset_pool // per_member
+
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
         start = time.perf_counter()
         if not self._sensed_once:
@@ -349,11 +460,17 @@ class FlockingEnv(EnvBase):
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self._generator.manual_seed(int(seed))
+        if self.reset_pool:
+            self._empty_reserve()
 
     # ------------------------------------------------------------------ state API
     def get_state(self) -> dict:
         """Everything needed to continue these episodes bit for bit, as plain tensors and dicts."""
-        return {"world": self.world.to_dict(), "generator": self._generator.get_state()}
+        state = {"world": self.world.to_dict(), "generator": self._generator.get_state()}
+        if self.reset_pool:
+            state["reset_pool"] = {"worlds": self._reserve.to_dict(), "next": self._reserve_next.clone(),
+                                   "calls": self._reserve_calls}
+        return state
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore :meth:`get_state`; the next full ``reset()`` returns the restored episodes
@@ -372,11 +489,48 @@ class FlockingEnv(EnvBase):
             if value.is_floating_point() and not bool(torch.isfinite(value).all()):
                 raise ValueError(f"env state: {key!r} contains NaN or inf; a world's state must be finite")
         check_like(world, reference, ("episode", "sensed"), "env state")  # the metrics and the sensing cache
+        reserve = self._checked_reserve(state)
         world.batch_size = self.batch_size
         self.world = world
         self._generator.set_state(state["generator"])
+        if reserve is not None:
+            self._reserve, self._reserve_next, self._reserve_calls = reserve
         self._sensed_once = True
         self._restored = True
+
+    def _checked_reserve(self, state: Mapping[str, Any]) -> tuple[TensorDict, torch.Tensor, int] | None:
+        """The reserve of a :meth:`get_state` (``None`` without ``reset_pool``), checked as the
+        worlds are; a state saved with another ``reset_pool`` is a ``ValueError``."""
+        saved = state.get("reset_pool")
+        if not self.reset_pool:
+            if saved is not None:
+                raise ValueError("env state: it carries a reserve of fresh worlds (saved with reset_pool > 0); this "
+                                 "env has reset_pool=0")
+            return None
+        members, per_member = self._reserve_groups()
+        if not isinstance(saved, Mapping) or not {"worlds", "next", "calls"} <= saved.keys():
+            raise ValueError(f"env state: no 'reset_pool' entry with 'worlds', 'next' and 'calls' (saved with "
+                             f"reset_pool=0?); this env keeps a reserve of {self.reset_pool} worlds")
+        count = members * self.reset_pool
+        worlds = saved["worlds"]
+        if not isinstance(worlds, (Mapping, TensorDictBase)):
+            raise ValueError("env state: 'reset_pool' has no mapping of worlds")
+        worlds = TensorDict(fill_absent(self.cfg, worlds, count, self.device), batch_size=[], device=self.device)
+        check_state(self.cfg, worlds, count, f"env state's reset_pool (reset_pool={self.reset_pool})")
+        check_like(worlds, self._reserve, ("episode", "sensed"), "env state's reset_pool")
+        pointer, calls = saved["next"], saved["calls"]
+        if not (isinstance(pointer, torch.Tensor) and pointer.dtype == torch.long and pointer.shape == (members,)
+                and bool(((pointer >= 0) & (pointer <= self.reset_pool)).all())):
+            raise ValueError(f"env state: reset_pool 'next' must be an int64 tensor of shape [{members}] in "
+                             f"[0, {self.reset_pool}], got {pointer!r}")
+        if not isinstance(calls, int) or isinstance(calls, bool) or not 0 <= calls <= self.reset_pool // per_member:
+            raise ValueError(f"env state: reset_pool 'calls' must be an integer in [0, "
+                             f"{self.reset_pool // per_member}], got {calls!r}")
+        if int(pointer.max()) + (self.reset_pool // per_member - calls) * per_member > self.reset_pool:
+            raise ValueError(f"env state: reset_pool 'next' ({pointer.tolist()}) is more than {calls} call(s) since "
+                             "the refill can have taken: the reserve would run dry")
+        worlds.batch_size = torch.Size([count])
+        return worlds, pointer.to(self.device).clone(), calls
 
     def place(self, position: Any, heading: Any, goal: Any, velocity: Any = None,
               moving_position: Any = None, drawn_circles: Any = None, drawn_rectangles: Any = None) -> TensorDict:
@@ -423,7 +577,8 @@ class FlockingEnv(EnvBase):
         as it would have here, S4 noise draws aside: their shape follows the batch).
 
         ``index``: world indices (integers, in the order wanted), or a boolean mask with one
-        flag per world (the worlds where it is ``True``, in order)."""
+        flag per world (the worlds where it is ``True``, in order). The new env has no reserve of
+        fresh worlds (``reset_pool = 0``)."""
         index = torch.as_tensor(index, device=self.device)
         if index.dtype == torch.bool:
             if index.numel() != self.num_envs:

@@ -43,6 +43,10 @@ class PopulationEnv(FlockingEnv):
         for generator, seed in zip(self._generators, self._member_seeds):
             generator.manual_seed(seed)
 
+    def _reserve_groups(self) -> tuple[int, int]:
+        # reset_pool: a reserve per member, drawn from its generator (its resets stay its own).
+        return self.members, self.worlds_per_member
+
     def _groups(self, index: torch.Tensor | None) -> list[tuple[int, int]]:
         """``(member, count)`` for each member with worlds in ``index`` (ascending), in order."""
         if index is None:
