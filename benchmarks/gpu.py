@@ -7,8 +7,9 @@
 * **update alone**: SAC updates of the paper recipe (minibatch 128 swarm transitions), the
   captured update (``cudagraphs=true``) against the uncaptured one, solo and as populations of
   10 and 80, member-updates/s;
-* **loops**: the paper and fast recipes' whole training loops with ``cudagraphs=true`` (``--compile``:
-  the loops' ``compile``, default ``false``), solo and
+* **loops**: the paper and fast recipes' whole training loops with ``cudagraphs=true`` and a
+  reserve of fresh worlds (``reset_pool``, :func:`reserve_for`; the paper recipe's solo loop
+  also without) (``--compile``: the loops' ``compile``, default ``false``), solo and
   populations of 10 and 80, each in a child process: member-updates/s of the loop, its split,
   the set-up time outside the loop and the peak GPU memory;
 * **projection**: the wall time of the paper's study (8 policies x 10 seeds x 816k updates, as
@@ -61,6 +62,15 @@ def projection_line(where: str, paper_rate: float, fast_rate: float, members: in
             f"{PAPER_UPDATES:,} updates, populations of {members}) at {paper_rate:.0f} member-updates/s: "
             f"{paper_h:.1f} h; ten fast seeds of the ten learned policies ({fast:,} updates each) at "
             f"{fast_rate:.0f} member-updates/s: {fast_h:.2f} h")
+
+
+def reserve_for(recipe: str) -> int:
+    """The loops' ``reset_pool``: a reserve of fresh worlds for 64 steps of the recipe's worlds
+    (at least 256), so a loop reads the device for its resets once in 64 steps at most."""
+    from flock_torchrl.config import TrainConfig
+    from flock_torchrl.run.trainer import make_train_config
+
+    return max(256, 64 * TrainConfig.from_config(make_train_config("policy3_g", recipe)).experiment.num_envs)
 
 
 def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str]:
@@ -123,18 +133,20 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in ("paper", "fast"):
             n = frames if recipe == "paper" else max(frames, 4096)
-            for k in (1, *members):
+            pool = reserve_for(recipe)
+            # The paper recipe's solo loop also without the reserve: TorchRL's resets, which read the device.
+            for k, reserve in ([(1, 0)] if recipe == "paper" else []) + [(k, pool) for k in (1, *members)]:
                 # A population's vmapped update is not compiled (captured as a whole): at most its step.
                 mode = "step" if compile == "true" and k > 1 else compile
-                r = row_in_child(recipe, k, n, mode, Path(tmp), device, "true", row_timeout)
+                what = f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true compile={mode} reset_pool={reserve}"
+                r = row_in_child(recipe, k, n, mode, Path(tmp), device, "true", row_timeout, reserve)
                 if r is None:
-                    say(f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true compile={mode}: did not finish {n} "
-                        f"frames within {row_timeout:.0f} s")
+                    say(f"{what}: did not finish {n} frames within {row_timeout:.0f} s")
                     continue
-                rates[recipe, k] = r["member_updates_per_s"]
+                if reserve:
+                    rates[recipe, k] = r["member_updates_per_s"]
                 split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
-                say(f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true compile={mode}: "
-                    f"{r['member_updates_per_s']:9.0f} "
+                say(f"{what}: {r['member_updates_per_s']:9.0f} "
                     f"member-updates/s ({r['updates']} updates in {r['loop_s']:.1f} s; {split}); set-up "
                     f"{r['setup_s']:.1f} s; peak GPU memory {r['gpu_peak_mb']:.0f} MB")
     if ("paper", members[0]) in rates and ("fast", members[0]) in rates:

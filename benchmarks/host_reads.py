@@ -91,7 +91,7 @@ def host_read_lines(recipe: str = "paper", members: int = 1, iterations: int = 2
     captured = sum(reads.in_captured.values())
     shown = " ".join(overrides)
     head = (f"host reads per iteration, {recipe} recipe, {'solo' if members == 1 else f'population of {members}'}"
-            f"{', ' + shown if shown else ''}: {reads.total / n:.2f} ({captured / n:.2f} more inside the captured "
+            f"{', ' + shown if shown else ''}: {reads.total / n:.3f} ({captured / n:.2f} more inside the captured "
             f"update, which a CUDA graph's replay never makes); {n} iterations counted")
     return [head] + ["  " + line for line in reads.table(per=n).splitlines()]
 

@@ -84,21 +84,22 @@ def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
 
 
 def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str = "cpu",
-            cudagraphs: str = "false") -> dict:
+            cudagraphs: str = "false", reset_pool: int = 0) -> dict:
     """One training run; its loop's member-updates/s and split, its set-up time (the run's wall
     time outside the loop, evaluation and checkpoints: envs, learner, collectors, first
     compilation), its peak memory (and the GPU's, on one)."""
     overrides = [f"population={members}", f"experiment.max_frames={frames}", "experiment.max_episodes=0",
                  "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "experiment.checkpoint_every_frames=0",
                  "progress=false", "logger=none", f"compile={compile}", "reading=paper_fit", f"device={device}",
-                 f"cudagraphs={cudagraphs}"]
+                 f"cudagraphs={cudagraphs}", f"reset_pool={reset_pool}"]
     cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, overrides))
     start = time.perf_counter()
-    result = train(cfg, folder / f"{recipe}_{members}_{compile}_{device}_{cudagraphs}")
+    result = train(cfg, folder / f"{recipe}_{members}_{compile}_{device}_{cudagraphs}_{reset_pool}")
     wall = time.perf_counter() - start
     loop = sum(result.split.get(k, 0.0) for k in LOOP)
     gpu = torch.cuda.max_memory_allocated() / 2**20 if device.startswith("cuda") else 0.0
     return {"recipe": recipe, "members": members, "compile": compile, "device": device, "cudagraphs": cudagraphs,
+            "reset_pool": reset_pool,
             "updates": result.updates, "member_updates_per_s": members * result.updates / loop, "loop_s": loop,
             "setup_s": wall - sum(result.split.values()),
             "split": {k: result.split.get(k, 0.0) / loop for k in LOOP if result.split.get(k, 0.0)},
@@ -107,12 +108,13 @@ def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, 
 
 
 def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str,
-                 cudagraphs: str = "false", timeout: float | None = None) -> dict | None:
+                 cudagraphs: str = "false", timeout: float | None = None, reset_pool: int = 0) -> dict | None:
     """:func:`run_row` in a fresh Python process (its peak memory is its own); ``None`` if it
     did not finish within ``timeout`` seconds."""
     try:
         done = subprocess.run([sys.executable, __file__, "--row", recipe, str(members), str(frames), compile,
-                               str(folder), device, cudagraphs], capture_output=True, text=True, timeout=timeout)
+                               str(folder), device, cudagraphs, "--reset-pool", str(reset_pool)],
+                              capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return None
     if done.returncode:
@@ -240,11 +242,13 @@ def main() -> None:
     parser.add_argument("--row", nargs=7, metavar=("RECIPE", "MEMBERS", "FRAMES", "COMPILE", "FOLDER", "DEVICE",
                                                    "CUDAGRAPHS"),
                         help="one row, printed as JSON (what population_lines runs in a child process)")
+    parser.add_argument("--reset-pool", type=int, default=0, help="the row's reset_pool")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.row:
         recipe, k, frames, compile, folder, device, cudagraphs = args.row
-        print(json.dumps(run_row(recipe, int(k), int(frames), compile, Path(folder), device, cudagraphs)))
+        print(json.dumps(run_row(recipe, int(k), int(frames), compile, Path(folder), device, cudagraphs,
+                                 args.reset_pool)))
         return
     population_lines(args.frames, args.members, args.recipes)
 

@@ -11,7 +11,8 @@
 * **paper loop**: the paper recipe's whole training loop (one env, one update per step),
   compiled against eager, in updates/s, with each run's time split;
 * **host reads**: reads of tensor values on the host per iteration of the paper recipe's loop,
-  solo and as a population of 10 (:mod:`benchmarks.host_reads`): on a GPU each one waits;
+  solo without and with a reserve of fresh worlds (``reset_pool``) and as a population of 10
+  with one (:mod:`benchmarks.host_reads`): on a GPU each one waits;
 * **GPU** (when CUDA is present; :mod:`benchmarks.gpu`): the env at B = 65,536, the captured
   update, the loops solo and as populations of 10 and 80, and the projection of the paper's study.
 
@@ -345,8 +346,9 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     else:
         text += "\nGPU rows: no CUDA device here (benchmarks/gpu.py runs them where torch.cuda.is_available())"
     # Host reads per iteration of the loop, what makes a GPU wait (benchmarks/host_reads.py).
-    for members in (1, 10):
-        text += "\n" + "\n".join(host_read_lines("paper", members, iterations=50 if cfg.quick else 200))
+    for members, pool in ((1, 0), (1, 256), (10, 256)):
+        text += "\n" + "\n".join(host_read_lines("paper", members, iterations=50 if cfg.quick else 200,
+                                                  overrides=(f"reset_pool={pool}",)))
     # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
     text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
     # The 3-D step against the 2-D one, per UAV-step (benchmarks/threed.py).

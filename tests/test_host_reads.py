@@ -80,13 +80,19 @@ def test_a_pending_batch_is_a_copy_of_what_the_collector_may_reuse():
 
 
 @pytest.mark.parametrize("members", [1, 2])
-def test_the_training_loop_itself_reads_nothing_per_iteration(members):
+def test_the_training_loop_reads_nothing_per_iteration(members):
     """Collection, the replay buffer, sampling, the update and the episode bookkeeping of a solo
-    run and a population read no tensor on the host between logs; what is left is the env's
-    resets (TorchRL's ``maybe_reset`` and the worlds drawn anew)."""
+    run and a population read no tensor on the host between logs. Without a reserve of fresh
+    worlds the resets read (TorchRL's ``maybe_reset`` and the worlds drawn anew); with one
+    (``reset_pool``, large enough here not to be refilled while counted) nothing does."""
     from benchmarks.host_reads import count_reads
 
-    reads, iterations = count_reads("tiny", members, iterations=12, overrides=("scenario.max_steps=8",))
+    overrides = ("scenario.max_steps=8",)
+    reads, iterations = count_reads("tiny", members, iterations=12, overrides=overrides)
     assert iterations == 12
     loop = [place for _, place in reads.counts if not place.startswith(("flock_torchrl/world/", "torchrl/envs/"))]
     assert not loop, reads.table()
+    assert reads.total >= 2 * 12, reads.table()  # the resets' reads, at least TorchRL's two per step
+    # tiny: 4 worlds (per member), 4 steps per batch; 22 iterations before counting, 12 counted.
+    reads, iterations = count_reads("tiny", members, iterations=12, overrides=(*overrides, "reset_pool=600"))
+    assert iterations == 12 and reads.total == 0, reads.table()

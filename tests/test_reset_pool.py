@@ -354,3 +354,23 @@ def test_population_and_mixed_size_runs_take_the_pool(tmp_path, extra):
     # a population: a reserve of 8 per member (2 x 4 worlds); mixed sizes: one per size (2 worlds each)
     assert [s["reset_pool"]["worlds"]["goal"].shape[0] for s in states] == ([16] if extra.startswith("pop") else
                                                                             [8, 8])
+
+
+def test_the_hand_out_by_hand_and_its_compiled_twin():
+    """take_from_reserve on a hand-made case (two members, reserves of 3), and compiled equal to
+    eager bit for bit."""
+    from flock_torchrl.world.env import take_from_reserve
+
+    world = {"a": torch.tensor([[0.0, 0.5], [1.0, 1.5], [2.0, 2.5], [3.0, 3.5]]), "b": {"c": torch.arange(4)}}
+    reserve = {"a": 10.0 + torch.arange(12.0).reshape(6, 2), "b": {"c": 100 + torch.arange(6)}}
+    pointer = torch.tensor([1, 0])
+    done = torch.tensor([[True, True], [False, True]])
+    # Member 0 takes its reserve worlds 1 and 2; member 1's world 1 takes its reserve world 0 (row 3).
+    new, after = take_from_reserve(world, reserve, pointer, done, 3)
+    assert new["b"]["c"].tolist() == [101, 102, 2, 103]
+    assert new["a"].tolist() == [[12.0, 13.0], [14.0, 15.0], [2.0, 2.5], [16.0, 17.0]]
+    assert after.tolist() == [3, 1]
+    compiled = torch.compile(take_from_reserve, dynamic=False, fullgraph=True)
+    twin, twin_after = compiled(world, reserve, pointer, done, 3)
+    assert torch.equal(twin["a"], new["a"]) and torch.equal(twin["b"]["c"], new["b"]["c"])
+    assert torch.equal(twin_after, after)

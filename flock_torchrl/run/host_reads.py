@@ -103,7 +103,7 @@ class HostReads(TorchDispatchMode):
     def table(self, per: int = 1) -> str:
         """The counts (divided by ``per``, e.g. the iterations counted) by place, most first; the
         reads inside captured functions after them, marked."""
-        lines = [f"{count / per:8.2f}  {op:<20} {place}" for (op, place), count in self.counts.most_common()]
-        lines += [f"{count / per:8.2f}  {op:<20} {place} (captured)"
+        lines = [f"{count / per:8.3f}  {op:<20} {place}" for (op, place), count in self.counts.most_common()]
+        lines += [f"{count / per:8.3f}  {op:<20} {place} (captured)"
                   for (op, place), count in self.in_captured.most_common()]
         return "\n".join(lines) or "no host reads"

@@ -39,6 +39,30 @@ EXTRAS = {
 }
 
 
+def take_from_reserve(world: dict, reserve: dict, pointer: torch.Tensor, done: torch.Tensor,
+                      pool: int) -> tuple[dict, torch.Tensor]:
+    """``(world, pointer)`` after the done worlds took the next unused reserve worlds.
+
+    ``world``: the worlds' entries (nested dicts of ``[K * B, ...]`` tensors), ``reserve`` the
+    reserve's (``[K * pool, ...]``, member-major), ``pointer [K]`` each member's next unused
+    reserve world, ``done [K, B]`` the done flags: world ``b`` of member ``k`` takes reserve world
+    ``pointer[k] + (done worlds of k up to b) - 1`` (clamped into the member's reserve) when done.
+    Tensor operations only: no host read, no branch on a value (what :meth:`FlockingEnv.maybe_reset`
+    runs, compiled with the step)."""
+    members = done.shape[0]
+    taken = done.long().cumsum(-1)                                                       # [K, B]
+    first = torch.arange(members, device=done.device)[:, None] * pool
+    slot = ((pointer[:, None] + taken - 1).clamp(0, pool - 1) + first).reshape(-1)      # never past the reserve
+    mask = done.reshape(-1)
+
+    def put(old: Any, new: Any) -> Any:
+        if isinstance(old, dict):
+            return {key: put(value, new[key]) for key, value in old.items()}
+        return torch.where(mask.reshape(-1, *(1,) * (old.ndim - 1)), new[slot], old)
+
+    return put(world, reserve), pointer + taken[:, -1]
+
+
 class FlockingEnv(EnvBase):
     """Multi-UAV flocking (Bai et al. 2024) as a batched, torch-native TorchRL environment.
 
@@ -146,6 +170,9 @@ class FlockingEnv(EnvBase):
         self._transition = (torch.compile(functools.partial(transition, static_shapes=True), dynamic=False,
                                           fullgraph=True, options=STEP_COMPILE_OPTIONS) if self.compile_step
                             else transition)
+        # The reserve's hand-out (reset_pool): compiled with the step, one fused kernel for every entry.
+        self._take = (torch.compile(take_from_reserve, dynamic=False, fullgraph=True, options=STEP_COMPILE_OPTIONS)
+                      if self.compile_step else take_from_reserve)
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
         self.world = self._empty_world()
@@ -158,6 +185,7 @@ class FlockingEnv(EnvBase):
         self._restored = False
         self.busy_seconds = 0.0  # wall time spent in reset and step (a trainer's time split reads it)
         self.compile_seconds = 0.0  # the compiled step's first call, where torch.compile works (not in busy)
+        self._took = False  # whether the reserve handed out worlds yet (its compiled hand-out's first call)
         if seed is not None:
             self.set_seed(seed)
 
@@ -370,11 +398,11 @@ class FlockingEnv(EnvBase):
         ``reset``), so there the reserve goes unused."""
         if not self.reset_pool:
             return super().maybe_reset(tensordict)
-        start = time.perf_counter()
+        start, compiling = time.perf_counter(), self.compile_seconds
         try:
             return self._reset_from_reserve(tensordict)
         finally:
-            self.busy_seconds += time.perf_counter() - start
+            self.busy_seconds += time.perf_counter() - start - (self.compile_seconds - compiling)
 
     def _reset_from_reserve(self, tensordict: TensorDictBase) -> TensorDictBase:
         done = tensordict.get("done", None)
@@ -385,18 +413,20 @@ class FlockingEnv(EnvBase):
         if (self._reserve_calls + 1) * per_member > pool:
             self._refill_reserve()
         done = done.reshape(members, per_member).to(self.device)
-        taken = done.long().cumsum(-1)                                                   # [K, B]
-        first = torch.arange(members, device=self.device)[:, None] * pool
-        slot = (self._reserve_next[:, None] + taken - 1).clamp(0, pool - 1) + first      # never past the reserve
-        fresh = self._reserve[slot.reshape(-1)]
+        start, old = time.perf_counter(), self.world.to_dict()
+        world, self._reserve_next = self._take(old, self._reserve.to_dict(), self._reserve_next, done, pool)
+        if self.compile_step and not self._took:  # its first call, where torch.compile works: booked as the step's
+            self.compile_seconds += time.perf_counter() - start
+
+        def restrided(old: dict, new: dict) -> dict:
+            # The world's own layout (the compiled step reads back what it wrote, as it wrote it).
+            return {key: restrided(value, new[key]) if isinstance(value, dict)
+                    else new[key] if new[key].stride() == value.stride() else torch.empty_like(value).copy_(new[key])
+                    for key, value in old.items()}
+
+        self.world = TensorDict._new_unsafe(restrided(old, world), batch_size=self.batch_size, device=self.device)
+        self._took = True
         mask = done.reshape(-1)
-
-        def put(old: torch.Tensor, new: torch.Tensor) -> torch.Tensor:
-            # Out of place, in the world's own layout (the compiled step reads it back as it wrote it).
-            return torch.where(mask.reshape(-1, *(1,) * (old.ndim - 1)), new, old, out=torch.empty_like(old))
-
-        self.world = self.world.apply(put, fresh)
-        self._reserve_next.add_(taken[:, -1])
         self._reserve_calls += 1
         self._restored = False
         # As TorchRL's reset with a "_reset" mask merges its output (torchrl.envs.utils._update_during_reset).
