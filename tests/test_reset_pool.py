@@ -17,6 +17,7 @@ from flock_torchrl.run.batches import AgentwiseDone
 from flock_torchrl.run.host_reads import HostReads
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.world.env import WHOLE_WARMUP
 from flock_torchrl.world.population import PopulationEnv
 from flock_torchrl.world.step import transition
 from test_spawn import surface_distance
@@ -331,14 +332,19 @@ def test_a_tiny_training_run_with_the_pool_resumes_bit_for_bit(tmp_path):
 def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
     # The reserve's worlds are written in the world's own layout: the compiled step, which reads
     # its outputs back, sees the same strides after a reset from the reserve as after a step.
+    # Compiled with a reserve, the whole step and hand-out is one function (TorchRL's env.compile):
+    # its eager warm-up calls, then its compilation (and one more for the layout the compiled
+    # step writes), then none across steps and hand-outs.
     env = FlockingEnv("train", num_envs=4, seed=2, policy_id="policy3_g", compile_step=True, check_actions=False,
-                      max_steps=2, reset_pool=8)
+                      max_steps=2, reset_pool=16)
     gen = torch.Generator().manual_seed(0)
-    td = env.step_and_maybe_reset(act(env, env.reset(), gen))[1]  # compiles
+    td = env.reset()
+    for _ in range(WHOLE_WARMUP + 2):  # compiles
+        td = env.step_and_maybe_reset(act(env, td, gen))[1]
     with torch.compiler.set_stance("fail_on_recompile"):
-        for _ in range(5):
+        for _ in range(6):  # worlds taken at every second call; the reserve refilled every fourth
             out, td = env.step_and_maybe_reset(act(env, td, gen))
-    assert out["next", "done"].all() and int(env._reserve_next[0]) == 4  # worlds taken at calls 1, 3 and 5
+    assert out["next", "done"].all() and env._whole == WHOLE_WARMUP + 8 and env.compile_seconds > 0
 
 
 @pytest.mark.parametrize("extra", ["population=2", "experiment.swarm_sizes=[3,5]"])
@@ -374,3 +380,28 @@ def test_the_hand_out_by_hand_and_its_compiled_twin():
     twin, twin_after = compiled(world, reserve, pointer, done, 3)
     assert torch.equal(twin["a"], new["a"]) and torch.equal(twin["b"]["c"], new["b"]["c"])
     assert torch.equal(twin_after, after)
+
+
+@pytest.mark.slow  # a compilation of the whole step (~20 s)
+def test_the_whole_compiled_step_and_reset_matches_its_eager_twin():
+    """compile_step with a reserve traces the step and the hand-out whole (noise drawn before
+    it): the same episodes as the eager twin, to the compiled step's round-off, the same draws."""
+    def rollout(compile_step: bool):
+        env = FlockingEnv("s4", num_envs=3, seed=5, policy_id="policy3_g", compile_step=compile_step,
+                          check_actions=False, max_steps=5, reset_pool=12)
+        gen, td, seen = torch.Generator().manual_seed(1), env.reset(), []
+        for _ in range(24):
+            out, td = env.step_and_maybe_reset(act(env, td, gen))
+            seen.append((out["next", "agents", "observation"].clone(), td["agents", "observation"].clone(),
+                         out["next", "done"].clone()))
+        return env, seen
+
+    eager, expected = rollout(False)
+    compiled, got = rollout(True)
+    assert compiled._whole == 24 and eager._whole is None
+    for (obs, root, done), (obs_c, root_c, done_c) in zip(expected, got):
+        assert torch.equal(done, done_c)
+        torch.testing.assert_close(obs_c, obs, rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(root_c, root, rtol=1e-4, atol=1e-4)
+    assert torch.equal(eager._generator.get_state(), compiled._generator.get_state())
+    assert sum(int(d.sum()) for _, _, d in expected) >= 9  # worlds were reset, from the reserve

@@ -29,6 +29,9 @@ from .step import noise_draws, sense, transition, world_obstacles
 # B = 1024 where the defaults gave 2.1x (one process, alternated; docs/throughput.md). CUDA
 # kernels (Triton) ignore both settings.
 STEP_COMPILE_OPTIONS = {"cpp.enable_loop_tail_vec": False, "cpp.enable_tiling_heuristics": False}
+# Calls of a whole compiled step and reset (compile_step with reset_pool) that run eagerly first
+# (TorchRL's compile warm-up): the tensordict's layout after a step is settled before tracing.
+WHOLE_WARMUP = 2
 
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
 EXTRAS = {
@@ -173,6 +176,16 @@ class FlockingEnv(EnvBase):
         # The reserve's hand-out (reset_pool): compiled with the step, one fused kernel for every entry.
         self._take = (torch.compile(take_from_reserve, dynamic=False, fullgraph=True, options=STEP_COMPILE_OPTIONS)
                       if self.compile_step else take_from_reserve)
+        self._counted = False                     # whether step_and_maybe_reset counted the reserve's hand-out
+        self._normals: dict | None = None         # sensor noise drawn before a whole compiled step
+        self._whole: int | None = None            # calls of the whole compiled step and reset (None: not compiled)
+        if self.compile_step and reset_pool:
+            # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
+            self._transition = functools.partial(transition, static_shapes=True)
+            self._take = take_from_reserve
+            self._whole = 0
+            self.compile(warmup=WHOLE_WARMUP, fullgraph=not self.check_actions, dynamic=False,
+                         options=STEP_COMPILE_OPTIONS)
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
         self.world = self._empty_world()
@@ -398,11 +411,48 @@ class FlockingEnv(EnvBase):
         ``reset``), so there the reserve goes unused."""
         if not self.reset_pool:
             return super().maybe_reset(tensordict)
+        if torch.compiler.is_compiling():  # traced whole: counted, refilled and timed by the caller
+            return self._reset_from_reserve(tensordict)
         start, compiling = time.perf_counter(), self.compile_seconds
         try:
+            if not self._counted:
+                self._reserve_due()
             return self._reset_from_reserve(tensordict)
         finally:
             self.busy_seconds += time.perf_counter() - start - (self.compile_seconds - compiling)
+
+    def _reserve_due(self) -> None:
+        """Count one hand-out of the reserve, refilling it first if that hand-out could run it dry."""
+        members, per_member = self._reserve_groups()
+        if (self._reserve_calls + 1) * per_member > self.reset_pool:
+            self._refill_reserve()
+        self._reserve_calls += 1
+
+    def step_and_maybe_reset(self, tensordict: TensorDictBase) -> tuple[TensorDictBase, TensorDictBase]:
+        """TorchRL's ``step_and_maybe_reset``. With a reserve (``reset_pool``) the reserve's
+        hand-out is counted (and the reserve refilled when due) here, before the step; with
+        ``compile_step`` too, the sensor noise is drawn here as well and the rest, the step and
+        the reserve's hand-out with TorchRL's bookkeeping around them, runs as one compiled
+        function (TorchRL's ``EnvBase.compile``): the same random draws in the same order as
+        its eager twin."""
+        if not self.reset_pool:
+            return super().step_and_maybe_reset(tensordict)
+        start, whole = time.perf_counter(), self._whole is not None
+        self._reserve_due()
+        if whole:
+            self._normals = self._draw_noise(None)
+        self._counted = True
+        try:
+            return super().step_and_maybe_reset(tensordict)
+        finally:
+            self._counted, self._normals = False, None
+            if whole:  # timed here: the traced step and hand-out do not time themselves
+                self._whole += 1
+                seconds = time.perf_counter() - start
+                if self._whole == WHOLE_WARMUP + 1:  # the call that compiles
+                    self.compile_seconds += seconds
+                else:
+                    self.busy_seconds += seconds
 
     def _reset_from_reserve(self, tensordict: TensorDictBase) -> TensorDictBase:
         done = tensordict.get("done", None)
@@ -410,13 +460,16 @@ class FlockingEnv(EnvBase):
             return tensordict
         members, per_member = self._reserve_groups()
         pool = self.reset_pool
-        if (self._reserve_calls + 1) * per_member > pool:
-            self._refill_reserve()
         done = done.reshape(members, per_member).to(self.device)
-        start, old = time.perf_counter(), self.world.to_dict()
-        world, self._reserve_next = self._take(old, self._reserve.to_dict(), self._reserve_next, done, pool)
-        if self.compile_step and not self._took:  # its first call, where torch.compile works: booked as the step's
-            self.compile_seconds += time.perf_counter() - start
+        old = self.world.to_dict()
+        if torch.compiler.is_compiling():
+            world, self._reserve_next = self._take(old, self._reserve.to_dict(), self._reserve_next, done, pool)
+        else:
+            start = time.perf_counter()
+            world, self._reserve_next = self._take(old, self._reserve.to_dict(), self._reserve_next, done, pool)
+            if self.compile_step and not self._took:  # its first call, where torch.compile works: the step's
+                self.compile_seconds += time.perf_counter() - start
+            self._took = True
 
         def restrided(old: dict, new: dict) -> dict:
             # The world's own layout (the compiled step reads back what it wrote, as it wrote it).
@@ -425,9 +478,7 @@ class FlockingEnv(EnvBase):
                     for key, value in old.items()}
 
         self.world = TensorDict._new_unsafe(restrided(old, world), batch_size=self.batch_size, device=self.device)
-        self._took = True
         mask = done.reshape(-1)
-        self._reserve_calls += 1
         self._restored = False
         # As TorchRL's reset with a "_reset" mask merges its output (torchrl.envs.utils._update_during_reset).
         return tensordict.where(~mask, other=self._output(), out=tensordict, pad=0, update_batch_size=True)
@@ -456,24 +507,30 @@ class FlockingEnv(EnvBase):
         self._reserve_calls = self.reset_pool // per_member
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
+        if torch.compiler.is_compiling():  # traced whole (compile_step with a reserve): timed by the caller
+            return self._advance(tensordict)
         start = time.perf_counter()
-        if not self._sensed_once:
-            raise ValueError("FlockingEnv.step: no episode has started; call reset() first (or place(), set_state())")
-        action = self._checked_action(tensordict)
-        world = self.world
-        state = {k: world[k] for k in STATE_KEYS}
-        normals = self._draw_noise(None)
-        state, sensed, episode, reward, summary = self._transition(
-            state, world["sensed"].to_dict(), world["episode"].to_dict(), action, self._static, self.cfg, normals)
-        # The step's outputs have the world's shapes by construction: no per-entry checks.
-        self.world = TensorDict._new_unsafe({**state, "sensed": sensed, "episode": episode},
-                                            batch_size=self.batch_size, device=self.device)
-        out = self._output(summary, reward)
+        out = self._advance(tensordict)
         if self.compile_step and not self.compile_seconds:
             self.compile_seconds = time.perf_counter() - start
         else:
             self.busy_seconds += time.perf_counter() - start
         return out
+
+    def _advance(self, tensordict: TensorDictBase) -> TensorDict:
+        if not self._sensed_once:
+            raise ValueError("FlockingEnv.step: no episode has started; call reset() first (or place(), set_state())")
+        action = self._checked_action(tensordict)
+        world = self.world
+        state = {k: world[k] for k in STATE_KEYS}
+        # Drawn before the step when the whole step and reset is compiled (a generator cannot be traced).
+        normals = self._draw_noise(None) if self._normals is None else self._normals
+        state, sensed, episode, reward, summary = self._transition(
+            state, world["sensed"].to_dict(), world["episode"].to_dict(), action, self._static, self.cfg, normals)
+        # The step's outputs have the world's shapes by construction: no per-entry checks.
+        self.world = TensorDict._new_unsafe({**state, "sensed": sensed, "episode": episode},
+                                            batch_size=self.batch_size, device=self.device)
+        return self._output(summary, reward)
 
     def _checked_action(self, tensordict: TensorDictBase) -> torch.Tensor:
         """:func:`~.state.checked_action` of this env's worlds (with ``check_actions``: values too)."""

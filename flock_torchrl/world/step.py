@@ -158,8 +158,11 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "closest_pair": closest,
     }
     if static_shapes:  # per-UAV results of the worlds-last layout are transposed views: stored [B, N, ...],
-        # as eager sensing gives them (the step reads some back: inputs of other strides would recompile it)
-        out = {key: value if key in ("scan", "scan_obstacle") else value.contiguous() for key, value in out.items()}
+        # as eager sensing gives them (the step reads some back: inputs of other strides would recompile it).
+        # With its standard strides even where a dimension of 1 leaves `contiguous()` a view (B = 1), as
+        # compiled code stores it.
+        out = {key: value if key in ("scan", "scan_obstacle") else value.clone(memory_format=torch.contiguous_format)
+               for key, value in out.items()}
     return out
 
 
