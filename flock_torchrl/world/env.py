@@ -179,7 +179,8 @@ class FlockingEnv(EnvBase):
         self._counted = False                     # whether step_and_maybe_reset counted the reserve's hand-out
         self._normals: dict | None = None         # sensor noise drawn before a whole compiled step
         self._whole: int | None = None            # calls of the whole compiled step and reset (None: not compiled)
-        if self.compile_step and reset_pool:
+        self._compiled_whole = bool(self.compile_step and reset_pool)  # read in the trace: never changes
+        if self._compiled_whole:
             # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
             self._transition = functools.partial(transition, static_shapes=True)
             self._take = take_from_reserve
@@ -413,6 +414,8 @@ class FlockingEnv(EnvBase):
             return super().maybe_reset(tensordict)
         if torch.compiler.is_compiling():  # traced whole: counted, refilled and timed by the caller
             return self._reset_from_reserve(tensordict)
+        if self._compiled_whole and self._counted:  # its eager warm-up: step_and_maybe_reset times it
+            return self._reset_from_reserve(tensordict)
         start, compiling = time.perf_counter(), self.compile_seconds
         try:
             if not self._counted:
@@ -507,7 +510,7 @@ class FlockingEnv(EnvBase):
         self._reserve_calls = self.reset_pool // per_member
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
-        if torch.compiler.is_compiling():  # traced whole (compile_step with a reserve): timed by the caller
+        if self._compiled_whole:  # with the reserve's hand-out, in one function: step_and_maybe_reset times it
             return self._advance(tensordict)
         start = time.perf_counter()
         out = self._advance(tensordict)
