@@ -55,6 +55,9 @@ def fast_updates() -> int:
 def projection_line(where: str, paper_rate: float, fast_rate: float, members: int = 10) -> str:
     """The study's wall time at ``paper_rate`` and ``fast_rate`` member-updates/s (each a
     population of ``members`` seeds; one population per policy, one after another)."""
+    if paper_rate <= 0 or fast_rate <= 0:  # e.g. a loop shorter than its recipe's random frames
+        return (f"projection ({where}): none, a loop measured no updates (paper {paper_rate:.0f}, fast "
+                f"{fast_rate:.0f} member-updates/s)")
     paper_h = PAPER_POLICIES * PAPER_SEEDS * PAPER_UPDATES / paper_rate / 3600
     fast = fast_updates()
     fast_h = FAST_POLICIES * FAST_SEEDS * fast / fast_rate / 3600
@@ -71,6 +74,12 @@ def reserve_for(recipe: str) -> int:
     from flock_torchrl.run.trainer import make_train_config
 
     return max(256, 64 * TrainConfig.from_config(make_train_config("policy3_g", recipe)).experiment.num_envs)
+
+
+def synchronize(device: str) -> None:
+    """Wait for ``device``'s queued work (nothing to wait for on a CPU)."""
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str]:
@@ -99,12 +108,12 @@ def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str
                            for _ in range(8)]
             for batch in batches:  # warm-up (and the capture)
                 learner.update(batch)
-            torch.cuda.synchronize()
+            synchronize(device)
             start = time.perf_counter()
             for i in range(calls):
                 learner.update(batches[i % len(batches)])
             learner.check()
-            torch.cuda.synchronize()
+            synchronize(device)
             rates[cudagraphs] = k * calls / (time.perf_counter() - start)
         lines.append(f"GPU update alone, paper recipe, {k:2d} member(s): captured {rates[True]:9.0f} member-updates/s, "
                      f"uncaptured {rates[False]:8.0f} ({rates[True] / rates[False]:.1f}x)")
@@ -112,12 +121,14 @@ def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str
 
 
 def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_timeout: float | None = None,
-              print_each: bool = False, compile: str = "false") -> list[str]:
+              print_each: bool = False, compile: str = "false", fast_frames: int = 4096,
+              update_members=(1, 10, 80), update_calls: int = 200, env_batch: int = 65536) -> list[str]:
     """Every GPU row, and the GPU's projection line (each line printed as it is measured with
     ``print_each``); a loop row that does not finish within ``row_timeout`` seconds says so.
     ``compile``: the loops' ``compile`` (``false``: what finished within a minute on an H200;
     with ``true``, ``step`` for populations, no row finished 1000 frames within 60 s there,
-    compilation included)."""
+    compilation included). ``device="cpu"`` with small sizes is a dry run of the same code
+    (``tests/test_benchmark.py``), so a GPU's scarce minutes are not spent finding its bugs."""
     from benchmarks.throughput import env_rows, format_rows
 
     lines: list[str] = []
@@ -127,12 +138,13 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
         if print_each:
             print(*new, sep="\n", flush=True)
 
-    say(f"GPU: {torch.cuda.get_device_name(device)}, torch {torch.__version__}")
-    say(*update_lines(device))
+    name = torch.cuda.get_device_name(device) if torch.device(device).type == "cuda" else f"none ({device}: a dry run)"
+    say(f"GPU: {name}, torch {torch.__version__}")
+    say(*update_lines(device, update_members, update_calls))
     rates: dict[tuple[str, int], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in ("paper", "fast"):
-            n = frames if recipe == "paper" else max(frames, 4096)
+            n = frames if recipe == "paper" else max(frames, fast_frames)
             pool = reserve_for(recipe)
             # The paper recipe's solo loop also without the reserve: TorchRL's resets, which read the device.
             for k, reserve in ([(1, 0)] if recipe == "paper" else []) + [(k, pool) for k in (1, *members)]:
@@ -151,7 +163,7 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
                     f"{r['setup_s']:.1f} s; peak GPU memory {r['gpu_peak_mb']:.0f} MB")
     if ("paper", members[0]) in rates and ("fast", members[0]) in rates:
         say(projection_line("GPU", rates["paper", members[0]], rates["fast", members[0]], members[0]))
-    rows = env_rows((65536,), steps=4, repeat=2, device=device)
+    rows = env_rows((env_batch,), steps=4, repeat=2, device=device)
     say(*format_rows(rows).splitlines()[1:])
     return lines
 

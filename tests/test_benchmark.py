@@ -114,3 +114,21 @@ def test_the_projection_line_divides_the_studys_updates_by_the_measured_rates():
     line = projection_line("here", 8 * 10 * 816_000 / 3600, 10 * 10 * 3234 / 3600, 10)
     assert line.startswith("projection (here): the paper's study (8 policies x 10 seeds x 816,000 updates")
     assert ": 1.0 h;" in line and "(3,234 updates each)" in line and line.endswith(": 1.00 h")
+    assert projection_line("here", 100.0, 0.0) == ("projection (here): none, a loop measured no updates (paper 100, "
+                                                   "fast 0 member-updates/s)")
+
+
+@pytest.mark.slow  # four short training runs in child processes
+def test_the_gpu_rows_run_their_code_as_a_dry_run_on_a_cpu():
+    """benchmarks/gpu.py's every row, tiny and on the CPU: what a GPU would run, minus CUDA."""
+    from benchmarks.gpu import gpu_lines
+
+    lines = gpu_lines(device="cpu", frames=40, members=(2,), fast_frames=64, update_members=(1, 2), update_calls=2,
+                      env_batch=8)
+    assert lines[0].startswith("GPU: none (cpu: a dry run)")
+    assert sum("GPU update alone" in line for line in lines) == 2
+    loops = [line for line in lines if line.startswith("GPU loop")]
+    assert len(loops) == 5 and sum("reset_pool=0:" in line for line in loops) == 1, loops
+    assert all("member-updates/s" in line for line in loops), loops
+    assert any(line.startswith("projection (GPU)") for line in lines)
+    assert any("env steps, B=8" in line for line in lines)
