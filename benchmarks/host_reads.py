@@ -33,7 +33,9 @@ WARMUP = 20  # iterations after the random frames before counting: every capture
 
 def counted(cls: type[Training]) -> type[Training]:
     """``cls`` whose envs step by the static-shape step run eagerly, and whose loop counts host
-    reads from iteration ``start`` on (``cls.reads``, ``cls.counted``)."""
+    reads from iteration ``start`` on (``cls.reads``, over ``cls.iterations`` iterations). The run
+    is to be eager (``compile=false``, the default): the counter sees what compiled code's eager
+    twins do."""
 
     class Counted(cls):
         start = 0
