@@ -272,5 +272,6 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluation_row", "policy_capture", "restore_rng", "rng_state",
-           "make_collectors", "make_env", "make_envs", "replay_buffer", "restore_buffer", "write_checkpoint"]
+__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluation_row", "policy_capture",
+           "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer", "restore_buffer",
+           "write_checkpoint"]
