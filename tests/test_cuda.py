@@ -80,3 +80,24 @@ def test_a_captured_population_trains_on_cuda(tmp_path):
             "logger=none", "compile=step"]
     result = train(make_train_config("policy3_g", "tiny", base), tmp_path / "population")
     assert result.updates > 0 and result.split["compile"] > 0
+
+
+def test_host_reads_see_copies_between_the_cpu_and_cuda():
+    from flock_torchrl.run.host_reads import HostReads
+
+    x = torch.ones(4, device="cuda")
+    pinned = torch.ones(4).pin_memory()
+    with HostReads() as reads:
+        x.cpu()
+        torch.ones(4).to("cuda")
+        x.copy_(torch.zeros(4))
+        x.copy_(pinned, non_blocking=True)         # waits for nothing
+        pinned.to("cuda", non_blocking=True)       # nor this
+    assert reads.total == 3, reads.table()
+
+
+def test_the_paper_loop_on_cuda_reads_nothing_per_iteration():
+    from benchmarks.host_reads import count_reads
+
+    reads, iterations = count_reads("paper", 1, iterations=30, overrides=("device=cuda", "reset_pool=256"))
+    assert iterations == 30 and reads.total == 0, reads.table()

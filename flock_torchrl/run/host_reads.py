@@ -5,8 +5,10 @@
 flock_torchrl, TorchRL or tensordict that asked, the operators whose result depends on tensor
 values the host must see: ``.item()``, ``bool()``, ``int()`` and ``float()`` of a tensor
 (``_local_scalar_dense``), ``nonzero``, indexing with a boolean mask, ``masked_select``,
-``unique``, ``equal`` and ``allclose``, and a copy from a CUDA tensor to the CPU. It sees them on
-a CPU just as on a GPU, so the tests here can hold a training iteration to none::
+``unique``, ``equal`` and ``allclose``, a copy from a CUDA tensor to the CPU, and one from the
+CPU to CUDA unless non-blocking from pinned memory (torch waits for the stream after it). It sees the first kinds on
+a CPU just as on a GPU (the copies only where there is CUDA), so the tests here can hold a
+training iteration to none::
 
     with HostReads() as reads:
         ...
@@ -52,9 +54,22 @@ def _reads(func: Any, args: tuple, kwargs: dict) -> bool:
         return any(isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in indices or ())
     if packet is aten._to_copy:
         source, target = args[0], kwargs.get("device")
-        return (isinstance(source, torch.Tensor) and source.device.type == "cuda" and target is not None
-                and torch.device(target).type == "cpu")
+        return (isinstance(source, torch.Tensor) and target is not None
+                and _waits(source, torch.device(target), bool(kwargs.get("non_blocking", False))))
+    if packet is aten.copy_:
+        target, source = args[0], args[1]
+        non_blocking = bool(args[2]) if len(args) > 2 else bool(kwargs.get("non_blocking", False))
+        return isinstance(source, torch.Tensor) and _waits(source, target.device, non_blocking)
     return False
+
+
+def _waits(source: torch.Tensor, target: torch.device, non_blocking: bool) -> bool:
+    """Whether copying ``source`` to ``target`` waits for the device: CUDA to the CPU always; the
+    CPU to CUDA unless from pinned memory without blocking (torch synchronises the stream after a
+    blocking copy between them, and a copy from pageable memory is staged by the host)."""
+    if source.device.type == "cuda" and target.type == "cpu":
+        return True
+    return source.device.type == "cpu" and target.type == "cuda" and not (non_blocking and source.is_pinned())
 
 
 # The functions CudaGraphModule records (flock_torchrl.policies: the learners' whole update).
