@@ -51,7 +51,7 @@ def take_from_reserve(world: dict, reserve: dict, pointer: torch.Tensor, done: t
     reserve world, ``done [K, B]`` the done flags: world ``b`` of member ``k`` takes reserve world
     ``pointer[k] + (done worlds of k up to b) - 1`` (clamped into the member's reserve) when done.
     Tensor operations only: no host read, no branch on a value (what :meth:`FlockingEnv.maybe_reset`
-    runs, compiled with the step)."""
+    runs; with ``compile_step``, traced with the step as one function)."""
     members = done.shape[0]
     taken = done.long().cumsum(-1)                                                       # [K, B]
     first = torch.arange(members, device=done.device)[:, None] * pool
@@ -173,9 +173,6 @@ class FlockingEnv(EnvBase):
         self._transition = (torch.compile(functools.partial(transition, static_shapes=True), dynamic=False,
                                           fullgraph=True, options=STEP_COMPILE_OPTIONS) if self.compile_step
                             else transition)
-        # The reserve's hand-out (reset_pool): compiled with the step, one fused kernel for every entry.
-        self._take = (torch.compile(take_from_reserve, dynamic=False, fullgraph=True, options=STEP_COMPILE_OPTIONS)
-                      if self.compile_step else take_from_reserve)
         self._counted = False                     # whether step_and_maybe_reset counted the reserve's hand-out
         self._normals: dict | None = None         # sensor noise drawn before a whole compiled step
         self._whole: int | None = None            # calls of the whole compiled step and reset (None: not compiled)
@@ -183,7 +180,6 @@ class FlockingEnv(EnvBase):
         if self._compiled_whole:
             # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
             self._transition = functools.partial(transition, static_shapes=True)
-            self._take = take_from_reserve
             self._whole = 0
             self.compile(warmup=WHOLE_WARMUP, fullgraph=not self.check_actions, dynamic=False,
                          options=STEP_COMPILE_OPTIONS)
@@ -199,7 +195,6 @@ class FlockingEnv(EnvBase):
         self._restored = False
         self.busy_seconds = 0.0  # wall time spent in reset and step (a trainer's time split reads it)
         self.compile_seconds = 0.0  # the compiled step's first call, where torch.compile works (not in busy)
-        self._took = False  # whether the reserve handed out worlds yet (its compiled hand-out's first call)
         if seed is not None:
             self.set_seed(seed)
 
@@ -416,13 +411,13 @@ class FlockingEnv(EnvBase):
             return self._reset_from_reserve(tensordict)
         if self._compiled_whole and self._counted:  # its eager warm-up: step_and_maybe_reset times it
             return self._reset_from_reserve(tensordict)
-        start, compiling = time.perf_counter(), self.compile_seconds
+        start = time.perf_counter()
         try:
             if not self._counted:
                 self._reserve_due()
             return self._reset_from_reserve(tensordict)
         finally:
-            self.busy_seconds += time.perf_counter() - start - (self.compile_seconds - compiling)
+            self.busy_seconds += time.perf_counter() - start
 
     def _reserve_due(self) -> None:
         """Count one hand-out of the reserve, refilling it first if that hand-out could run it dry."""
@@ -465,14 +460,7 @@ class FlockingEnv(EnvBase):
         pool = self.reset_pool
         done = done.reshape(members, per_member).to(self.device)
         old = self.world.to_dict()
-        if torch.compiler.is_compiling():
-            world, self._reserve_next = self._take(old, self._reserve.to_dict(), self._reserve_next, done, pool)
-        else:
-            start = time.perf_counter()
-            world, self._reserve_next = self._take(old, self._reserve.to_dict(), self._reserve_next, done, pool)
-            if self.compile_step and not self._took:  # its first call, where torch.compile works: the step's
-                self.compile_seconds += time.perf_counter() - start
-            self._took = True
+        world, self._reserve_next = take_from_reserve(old, self._reserve.to_dict(), self._reserve_next, done, pool)
 
         def restrided(old: dict, new: dict) -> dict:
             # The world's own layout (the compiled step reads back what it wrote, as it wrote it).
