@@ -344,7 +344,7 @@ def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
     with torch.compiler.set_stance("fail_on_recompile"):
         for _ in range(6):  # worlds taken at every second call; the reserve refilled every fourth
             out, td = env.step_and_maybe_reset(act(env, td, gen))
-    assert out["next", "done"].all() and env._whole == WHOLE_WARMUP + 8 and env.compile_seconds > 0
+    assert out["next", "done"].all() and env._whole_calls == WHOLE_WARMUP + 8 and env.compile_seconds > 0
 
 
 @pytest.mark.parametrize("extra", ["population=2", "experiment.swarm_sizes=[3,5]"])
@@ -398,7 +398,8 @@ def test_the_whole_compiled_step_and_reset_matches_its_eager_twin():
 
     eager, expected = rollout(False)
     compiled, got = rollout(True)
-    assert compiled._whole == 24 and eager._whole is None
+    assert compiled._compiled_whole and compiled._whole_calls == 24
+    assert not eager._compiled_whole and eager._whole_calls == 0
     for (obs, root, done), (obs_c, root_c, done_c) in zip(expected, got):
         assert torch.equal(done, done_c)
         torch.testing.assert_close(obs_c, obs, rtol=1e-4, atol=1e-4)

@@ -175,12 +175,11 @@ class FlockingEnv(EnvBase):
                             else transition)
         self._counted = False                     # whether step_and_maybe_reset counted the reserve's hand-out
         self._normals: dict | None = None         # sensor noise drawn before a whole compiled step
-        self._whole: int | None = None            # calls of the whole compiled step and reset (None: not compiled)
+        self._whole_calls = 0                     # calls of the whole compiled step and reset
         self._compiled_whole = bool(self.compile_step and reset_pool)  # read in the trace: never changes
         if self._compiled_whole:
             # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
             self._transition = functools.partial(transition, static_shapes=True)
-            self._whole = 0
             self.compile(warmup=WHOLE_WARMUP, fullgraph=not self.check_actions, dynamic=False,
                          options=STEP_COMPILE_OPTIONS)
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
@@ -435,7 +434,7 @@ class FlockingEnv(EnvBase):
         its eager twin."""
         if not self.reset_pool:
             return super().step_and_maybe_reset(tensordict)
-        start, whole = time.perf_counter(), self._whole is not None
+        start, whole = time.perf_counter(), self._compiled_whole
         self._reserve_due()
         if whole:
             self._normals = self._draw_noise(None)
@@ -445,9 +444,9 @@ class FlockingEnv(EnvBase):
         finally:
             self._counted, self._normals = False, None
             if whole:  # timed here: the traced step and hand-out do not time themselves
-                self._whole += 1
+                self._whole_calls += 1
                 seconds = time.perf_counter() - start
-                if self._whole == WHOLE_WARMUP + 1:  # the call that compiles
+                if self._whole_calls == WHOLE_WARMUP + 1:  # the call that compiles
                     self.compile_seconds += seconds
                 else:
                     self.busy_seconds += seconds
