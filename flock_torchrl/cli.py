@@ -32,7 +32,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from .io import shown, write_failure
-from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted
+from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted, say
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
@@ -57,7 +57,7 @@ def _errors() -> tuple[type[BaseException], ...]:
 
 def fail(message: Any) -> None:
     """Print ``error: <message>`` (one line) and exit with status 2."""
-    print(f"error: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+    say(f"error: {' '.join(str(message).split())}")
     raise SystemExit(EXIT_ERROR)
 
 
@@ -365,16 +365,14 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         out = Path(HydraConfig.get().runtime.output_dir)
         stopped = APP_SIGNALS.worker_stopped()
         if stopped:  # joblib hands out the jobs it holds: they do not start
-            print(f"not started: {out} (the sweep was stopped by {signal.Signals(stopped).name})", file=sys.stderr,
-                  flush=True)
+            say(f"not started: {out} (the sweep was stopped by {signal.Signals(stopped).name})")
             return 128 + stopped
         obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
         APP_SIGNALS.arm()  # also where no PreRunCheck ran (a config without the callback)
         try:
             return _guard(lambda: APPS[app].run(obj, out))
         except TrainingInterrupted as exc:
-            print(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); "
-                  f"resume with: {exc.command}", file=sys.stderr, flush=True)
+            say(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); resume with: {exc.command}")
             if APP_SIGNALS.in_sweep_worker():  # an exit here would make joblib cancel the jobs still checkpointing
                 APP_SIGNALS.mark_worker_stopped(exc.signum)
                 return exc.exit_status
@@ -403,7 +401,7 @@ def main(app: str, noted: list[int] | None = None) -> Any:
             raise SystemExit(128 + stopped)
         return result
     except Stopped as stop:
-        print(stop.message(), file=sys.stderr, flush=True)
+        say(stop.message())
         raise SystemExit(128 + stop.signum) from None
 
 

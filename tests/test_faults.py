@@ -587,6 +587,25 @@ def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp
 
 
 # ---------------------------------------------------------------------------- 10: a joblib sweep stopped
+def test_a_stop_line_reaches_stderr_in_one_write(monkeypatch):
+    """The jobs of a joblib sweep share one stderr: a line written in two pieces (``print``
+    writes the newline apart) ran into the next job's line."""
+    from flock_torchrl.run.signals import say
+
+    writes = []
+
+    class Recorder:
+        def write(self, text):
+            writes.append(text)
+
+        def flush(self):
+            writes.append("<flush>")
+
+    monkeypatch.setattr(sys, "stderr", Recorder())
+    say("stopped by SIGTERM: checkpoint x")
+    assert writes == ["stopped by SIGTERM: checkpoint x\n", "<flush>"]
+
+
 @pytest.mark.slow
 def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_jobs_do_not_start(tmp_path):
     import signal

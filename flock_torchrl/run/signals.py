@@ -29,6 +29,13 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(sig
 SHUTDOWN_TIMEOUT = 30.0
 
 
+def say(line: str) -> None:
+    """Write ``line`` and its newline to stderr in one write. ``print`` writes the text and the
+    newline apart, so the jobs of a joblib sweep, which share one stderr, ran lines together."""
+    sys.stderr.write(line + "\n")
+    sys.stderr.flush()
+
+
 class Stopped(BaseException):
     """A stop signal that cannot wait for the end of the update. ``resume``: the command that
     continues the training run it aborted (``None``: it stopped an app outside a training loop)."""
@@ -84,8 +91,8 @@ class Signals:
             self.received = self.received or signum
             raise Stopped(self.received, self.resume or "")
         self.received = signum
-        print(f"\n{signal.Signals(signum).name} received: finishing this update and writing a checkpoint "
-              "(Ctrl-C again aborts at once)", file=sys.stderr, flush=True)
+        say(f"\n{signal.Signals(signum).name} received: finishing this update and writing a checkpoint "
+            "(Ctrl-C again aborts at once)")
 
     def __exit__(self, *exc: Any) -> None:
         for signum, handler in self.previous.items():

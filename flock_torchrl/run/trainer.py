@@ -15,7 +15,6 @@ run's checkpoints and logs equal an uninterrupted run's.
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -33,7 +32,7 @@ from .run_folder import EpisodeLog, logger_hparams, make_logger, resume_command,
 from .schedule import Schedule, evaluated_at_end
 from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra_settings, make_train_config,
                     memory_estimate, prepare, resume_payload)
-from .signals import (SHUTDOWN_TIMEOUT, STOP_SIGNALS, Signals, Stopped, TrainingInterrupted, shutdown,
+from .signals import (SHUTDOWN_TIMEOUT, STOP_SIGNALS, Signals, Stopped, TrainingInterrupted, say, shutdown,
                       start_resource_tracker)
 from .timing import Progress, TimeSplit, rates, seeds_label
 
@@ -137,8 +136,7 @@ class Training:
                                                          time.perf_counter() - self.start):
                     break
         except FloatingPointError as exc:
-            print(f"stopping: {exc}; the last good checkpoint is kept at {self.ckpt_path}", file=sys.stderr,
-                  flush=True)
+            say(f"stopping: {exc}; the last good checkpoint is kept at {self.ckpt_path}")
             raise
 
     def _consume(self, batches: Sequence[TensorDictBase]) -> dict[str, torch.Tensor]:
