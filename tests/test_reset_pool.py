@@ -7,6 +7,7 @@ import functools
 import io
 
 import pytest
+import tensordict
 import torch
 from tensordict import TensorDict
 from torchrl.collectors import Collector
@@ -341,9 +342,15 @@ def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
     td = env.reset()
     for _ in range(WHOLE_WARMUP + 2):  # compiles
         td = env.step_and_maybe_reset(act(env, td, gen))[1]
+    # Neither a policy that writes more than the action (a SAC actor's loc and scale, after the
+    # random actions that fill a buffer first) nor a class tensordict has not seen before (a
+    # learner's first update) recompiles it.
+    tensordict.is_tensorclass(type("NotSeenBefore", (), {}))
     with torch.compiler.set_stance("fail_on_recompile"):
         for _ in range(6):  # worlds taken at every second call; the reserve refilled every fourth
-            out, td = env.step_and_maybe_reset(act(env, td, gen))
+            given = act(env, td, gen).set(("agents", "loc"), torch.zeros(4, 5, 2))
+            out, td = env.step_and_maybe_reset(given)
+    assert out is given and ("agents", "loc") in out.keys(True) and ("next", "agents", "observation") in out.keys(True)
     assert out["next", "done"].all() and env._whole_calls == WHOLE_WARMUP + 8 and env.compile_seconds > 0
 
 

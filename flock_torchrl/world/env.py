@@ -33,6 +33,14 @@ STEP_COMPILE_OPTIONS = {"cpp.enable_loop_tail_vec": False, "cpp.enable_tiling_he
 # (TorchRL's compile warm-up): the tensordict's layout after a step is settled before tracing.
 WHOLE_WARMUP = 2
 
+
+def _without_memo_guards(entries: Sequence[Any]) -> list[bool]:
+    """Dynamo's guards for the whole compiled step, less those on tensordict's memo of which
+    classes are tensorclasses: the traced step reads that memo, so dynamo guarded its length, and
+    any class checked anywhere later in the process (a learner's first update) recompiled the
+    step. The memo caches a class attribute: its other entries cannot change what the step does."""
+    return ["_TENSORCLASS_MEMO" not in entry.name for entry in entries]
+
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
 EXTRAS = {
     "physics": (("agents", "position"), ("agents", "velocity"), ("agents", "heading"), "goal",
@@ -181,7 +189,7 @@ class FlockingEnv(EnvBase):
             # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
             self._transition = functools.partial(transition, static_shapes=True)
             self.compile(warmup=WHOLE_WARMUP, fullgraph=not self.check_actions, dynamic=False,
-                         options=STEP_COMPILE_OPTIONS)
+                         options={**STEP_COMPILE_OPTIONS, "guard_filter_fn": _without_memo_guards})
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
         self._make_spec()
         self.world = self._empty_world()
@@ -255,6 +263,9 @@ class FlockingEnv(EnvBase):
                                      device=dev)
         self.done_spec = Composite(done=flag(1, batch=(b,)), terminated=flag(1, batch=(b,)),
                                    truncated=flag(1, batch=(b,)), shape=(b,), device=dev)
+        # What a whole compiled step is traced on: the env's outputs and the action.
+        self._whole_keys = [*self.full_observation_spec.keys(True, True), *self.full_done_spec.keys(True, True),
+                            *self.full_state_spec.keys(True, True), *self.full_action_spec.keys(True, True)]
 
     # ------------------------------------------------------------------ state
     def _empty_world(self, sensed: bool = False) -> TensorDict:
@@ -440,7 +451,14 @@ class FlockingEnv(EnvBase):
             self._normals = self._draw_noise(None)
         self._counted = True
         try:
-            return super().step_and_maybe_reset(tensordict)
+            if not whole:
+                return super().step_and_maybe_reset(tensordict)
+            # Traced on the env's own keys and the action: what else a policy wrote (a SAC actor's
+            # loc and scale, absent while random actions fill the buffer) would change the traced
+            # tensordict's layout and recompile it. The caller's tensordict gets the step's "next".
+            out, following = super().step_and_maybe_reset(tensordict.select(*self._whole_keys, strict=False))
+            tensordict.set("next", out.get("next"))
+            return tensordict, following
         finally:
             self._counted, self._normals = False, None
             if whole:  # timed here: the traced step and hand-out do not time themselves
