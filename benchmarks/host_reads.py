@@ -45,7 +45,7 @@ def counted(cls: type[Training]) -> type[Training]:
         def _build(self, payload):
             super()._build(payload)
             for env in self.envs:
-                env._transition = functools.partial(transition, static_shapes=True)
+                env._transition = functools.partial(transition, static_shapes=True, static=env._static, cfg=env.cfg)
 
         def _consume(self, batches):
             if self.counters["iterations"] == type(self).start:

@@ -45,7 +45,7 @@ def stepper(env: FlockingEnv, steps: int, api: str = "step"):
             else:
                 state = {k: world[k] for k in STATE_KEYS}
                 env._transition(state, world["sensed"].to_dict(), world["episode"].to_dict(), td["agents", "action"],
-                             env._static, env.cfg, None)
+                                normals=None)
     return go
 
 

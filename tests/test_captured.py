@@ -1,6 +1,7 @@
-"""The captured update (``cudagraphs=true``): one function per gradient step that never reads a
-tensor on the host, wrapped in tensordict's ``CudaGraphModule``. Without CUDA the module calls it
-as it is, so these tests run the captured code path here against the uncaptured learner."""
+"""The captured update and env step (``cudagraphs=true``): one function per gradient step, and the
+env's step and reserve hand-out, that never read a tensor on the host, wrapped in tensordict's
+``CudaGraphModule``. Without CUDA the module calls them as they are, so these tests run the
+captured code path here against the uncaptured learner and step."""
 
 from __future__ import annotations
 
@@ -104,11 +105,12 @@ def test_a_captured_run_equals_the_uncaptured_one_and_a_population_of_one(tmp_pa
         (tmp_path / "one" / "seed0" / "episodes.csv").read_text()
 
 
-def test_a_captured_run_resumes_bitwise(tmp_path):
-    whole = train(quick_config(1, "policy3_g", "cudagraphs=true"), tmp_path / "whole")
+@pytest.mark.parametrize("extra", [[], ["reset_pool=8"]])  # with a reserve: the hand-out captured too
+def test_a_captured_run_resumes_bitwise(tmp_path, extra):
+    whole = train(quick_config(1, "policy3_g", "cudagraphs=true", *extra), tmp_path / "whole")
     assert whole.updates > 0
-    train(quick_config(1, "policy3_g", "cudagraphs=true", "experiment.max_frames=64"), tmp_path / "resumed")
-    train(quick_config(1, "policy3_g", "cudagraphs=true", "resume=true"), tmp_path / "resumed")
+    train(quick_config(1, "policy3_g", "cudagraphs=true", "experiment.max_frames=64", *extra), tmp_path / "resumed")
+    train(quick_config(1, "policy3_g", "cudagraphs=true", "resume=true", *extra), tmp_path / "resumed")
     a = load_checkpoint(tmp_path / "whole" / "last.pt")
     b = load_checkpoint(tmp_path / "resumed" / "last.pt")
     assert all(torch.equal(v, b["actor"][k]) for k, v in a["actor"].items())
@@ -118,3 +120,51 @@ def test_cudagraphs_is_refused_for_ppo_in_one_line():
     with pytest.raises(ConfigError, match="cudagraphs") as info:
         TrainConfig.from_config(make_train_config("policyp_g", "tiny", ["cudagraphs=true"]))
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("scenario", ["train", "s4"])  # s4: sensor noise, drawn before the step and passed in
+def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(scenario):
+    """``capture_step=True`` (what ``cudagraphs=true`` gives the training env): the step and the
+    reserve's hand-out wrapped in ``CudaGraphModule`` (a pass-through here). What a graph's
+    replay needs holds on a CPU: every call gives them tensors only (copied into the graph's
+    inputs on a GPU), a step between refills reads nothing on the host, and the env steps as the
+    uncaptured static-shape step, bit for bit."""
+    from functools import partial
+
+    from tensordict.nn import CudaGraphModule
+    from torch.utils._pytree import tree_leaves
+
+    from flock_torchrl import FlockingEnv
+    from flock_torchrl.run.host_reads import HostReads
+    from flock_torchrl.world.step import transition
+
+    kwargs = dict(num_envs=4, seed=1, policy_id="policy3_g", max_steps=3, reset_pool=12, check_actions=False)
+    env = FlockingEnv(scenario, capture_step=True, **kwargs)
+    twin = FlockingEnv(scenario, **kwargs)
+    twin._transition = partial(transition, static_shapes=True, static=twin._static, cfg=twin.cfg)
+    assert isinstance(env._transition, CudaGraphModule) and isinstance(env._hand_out, CudaGraphModule)
+    given = set()
+    for module in (env._transition, env._hand_out):
+        def spy(*args, _inner=module.module, **kw):
+            given.update(type(leaf).__name__ for leaf in tree_leaves((args, kw)))
+            return _inner(*args, **kw)
+        module.module = spy
+    refills = []
+    refill = env._refill_reserve
+    env._refill_reserve = lambda: (refills.append(True), refill())
+    gen = torch.Generator().manual_seed(0)
+    td, td_twin = env.reset(), twin.reset()
+    quiet = 0
+    for _ in range(12):
+        action = torch.rand(4, 5, 2, generator=gen) * 2 - 1
+        refills.clear()
+        with HostReads() as reads:
+            out, td = env.step_and_maybe_reset(td.set(("agents", "action"), action))
+        want, td_twin = twin.step_and_maybe_reset(td_twin.set(("agents", "action"), action.clone()))
+        if not refills:
+            assert reads.total == 0, reads.table()
+            quiet += 1
+        for key in want.keys(True, True):
+            torch.testing.assert_close(out[key], want[key], rtol=0, atol=0, equal_nan=True, msg=key)
+    assert quiet == 8 and out["next", "done"].any()  # refills every 12 // 4 = 3 calls; worlds ended
+    assert given == ({"Tensor"} if scenario == "s4" else {"Tensor", "NoneType"})  # no noise: normals=None

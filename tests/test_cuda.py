@@ -101,3 +101,28 @@ def test_the_paper_loop_on_cuda_reads_nothing_per_iteration():
 
     reads, iterations = count_reads("paper", 1, iterations=30, overrides=("device=cuda", "reset_pool=256"))
     assert iterations == 30 and reads.total == 0, reads.table()
+
+
+def test_a_captured_step_on_cuda_equals_the_uncaptured_one():
+    """capture_step=True on CUDA: the step and the reserve's hand-out recorded as CUDA graphs and
+    replayed, stepping as the uncaptured static-shape step (the same kernels)."""
+    from functools import partial
+
+    from flock_torchrl.capture import CUDAGRAPH_WARMUP
+    from flock_torchrl.world.step import transition
+
+    kwargs = dict(num_envs=8, seed=1, policy_id="policy3_g", max_steps=4, reset_pool=32, check_actions=False,
+                  device="cuda")
+    env = FlockingEnv("s4", capture_step=True, **kwargs)
+    twin = FlockingEnv("s4", **kwargs)
+    twin._transition = partial(transition, static_shapes=True, static=twin._static, cfg=twin.cfg)
+    gen = torch.Generator(device="cuda").manual_seed(0)
+    td, td_twin = env.reset(), twin.reset()
+    for _ in range(16):
+        action = torch.rand(8, 5, 2, generator=gen, device="cuda") * 2 - 1
+        out, td = env.step_and_maybe_reset(td.set(("agents", "action"), action))
+        want, td_twin = twin.step_and_maybe_reset(td_twin.set(("agents", "action"), action.clone()))
+        for key in want.keys(True, True):
+            torch.testing.assert_close(out[key], want[key], rtol=1e-5, atol=1e-5, equal_nan=True, msg=str(key))
+    for module in (env._transition, env._hand_out):  # recorded at the last warm-up call, replayed since
+        assert module.counter == CUDAGRAPH_WARMUP and isinstance(module.graph, torch.cuda.CUDAGraph)

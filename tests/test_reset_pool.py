@@ -29,7 +29,7 @@ def pool_env(scenario="train", num_envs=6, reset_pool=18, seed=0, max_steps=4, *
     compiles it, eagerly: the static-shape step the counter can see into."""
     env = FlockingEnv(scenario, num_envs=num_envs, seed=seed, policy_id="policy3_g", max_steps=max_steps,
                       reset_pool=reset_pool, check_actions=False, **kwargs)
-    env._transition = functools.partial(transition, static_shapes=True)
+    env._transition = functools.partial(transition, static_shapes=True, static=env._static, cfg=env.cfg)
     return env
 
 

@@ -106,7 +106,7 @@ class TrainConfig(RunOptions, WorldApp):
     objective: str = MISSING                 # what the app returns to a sweeper: a final-evaluation metric
     resumable: List[str] = field(default_factory=list)   # keys a resume may change (a trailing . = a group)
     population: int = 1                      # members trained together, seeds seed .. seed + population - 1
-    cudagraphs: bool = False                 # the update as one captured CUDA graph (sac, ddpg; CPU: eager)
+    cudagraphs: bool = False                 # update, policy and env step as CUDA graphs (sac, ddpg; CPU: eager)
     reset_pool: int = 0                      # P > 0: a reserve of P fresh worlds per env (FlockingEnv)
 
     def checked_fields(self, p: str) -> dict[str, Any]:

@@ -37,6 +37,7 @@ from tensordict.nn import TensorDictSequential
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import ClipPPOLoss, DDPGLoss, SACLoss, SoftUpdate, ValueEstimators
 
+from ..capture import captured
 from ..config import DDPGConfig, PPOConfig, SACConfig
 from .models import ACTION, LOG_PROB, SamplingActor, make_actor, make_qvalue, make_value
 
@@ -52,23 +53,6 @@ def adam(groups: list[dict[str, Any]], device: torch.device, capturable: bool = 
     fused = device.type in ("cpu", "cuda")
     extra = {"capturable": True} if capturable and device.type == "cuda" else {}
     return torch.optim.Adam(groups, fused=fused or None, foreach=None if fused else True, **extra)
-
-
-# Calls of a captured update run as they are before the CUDA graph is recorded (the optimiser's
-# state and the compiled loss exist by then): tensordict's CudaGraphModule ``warmup``.
-CUDAGRAPH_WARMUP = 3
-
-
-def captured(step, device: torch.device, enabled: bool):
-    """``step`` itself, or tensordict's ``CudaGraphModule`` around it (recorded on the device's
-    first calls after :data:`CUDAGRAPH_WARMUP`, replayed after; a pass-through without CUDA)."""
-    if not enabled:
-        return step
-    from tensordict.nn import CudaGraphModule
-
-    with warnings.catch_warnings():  # on a CPU: "calls to this instance will just pass through"
-        warnings.filterwarnings("ignore", message="This module is instantiated on a machine without CUDA")
-        return CudaGraphModule(step, warmup=CUDAGRAPH_WARMUP, device=device if device.type == "cuda" else None)
 
 
 class FiniteLosses:

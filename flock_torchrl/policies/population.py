@@ -26,7 +26,8 @@ from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torchrl.data.replay_buffers.samplers import Sampler
 
-from .learners import FiniteLosses, adam, captured, make_learner
+from ..capture import captured
+from .learners import FiniteLosses, adam, make_learner
 from .models import SamplingActor
 
 # The trainable parameters and the soft-updated targets of each learner, as SoftUpdate pairs

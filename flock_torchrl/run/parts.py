@@ -21,7 +21,7 @@ from torchrl.envs.utils import ExplorationType
 from ..config import TrainConfig
 from ..io import write_failure
 from ..policies.checkpoint import CheckpointError, save_checkpoint
-from ..policies.learners import CUDAGRAPH_WARMUP
+from ..capture import CUDAGRAPH_WARMUP
 from ..world.env import FlockingEnv
 from .batches import AgentwiseDone
 from .signals import ignore_stop_signals, start_workers
@@ -83,7 +83,8 @@ def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, p
     if os.getpid() != parent:
         ignore_stop_signals()
     return FlockingEnv(scenario or cfg.train_scenario, num_envs=num_envs, device=device, seed=seed,
-                       compile_step=cfg.compile_step, check_actions=False, reset_pool=cfg.reset_pool)
+                       compile_step=cfg.compile_step, check_actions=False, reset_pool=cfg.reset_pool,
+                       capture_step=cfg.cudagraphs)
 
 
 def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:

@@ -77,7 +77,7 @@ class PopulationTraining(Training):
         scenarios = cfg.train_scenarios if self.mixed else [cfg.train_scenario]
         self.envs = [PopulationEnv(scenario, self.k, exp.num_envs // len(scenarios), [s * 1000 + i for s in self.seeds],
                                    device=device, compile_step=cfg.compile_step, check_actions=False,
-                                   reset_pool=cfg.reset_pool)
+                                   reset_pool=cfg.reset_pool, capture_step=cfg.cudagraphs)
                      for i, scenario in enumerate(scenarios)]
         self.env = env = self.envs[0]
         self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds,

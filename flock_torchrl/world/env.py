@@ -13,6 +13,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from ..capture import captured
 from ..config.scenario import ScenarioConfig
 from .geometry import Obstacles
 from .metrics import FLAG_METRICS, METRIC_KEYS, new_accumulator, summary_values
@@ -126,6 +127,14 @@ class FlockingEnv(EnvBase):
             many. Reproducible from the seed, and :meth:`get_state` carries the reserve, but the
             episodes differ from ``reset_pool=0`` once a world was reset (the draws happen in
             another order). See :meth:`maybe_reset` for what else keeps or refills the reserve.
+        capture_step: on a GPU, record the world's step as one CUDA graph and replay it
+            (``flock_torchrl.capture``, tensordict's ``CudaGraphModule``), and with a reserve
+            (``reset_pool``) its hand-out as another: launching the step's hundreds of small
+            kernels one by one costs far more than running them. The step is the static-shape
+            one (every UAV pair, every beam and obstacle), which never reads the host, eager or
+            compiled (``compile_step``; the step alone then, not the whole ``step_and_maybe_reset``
+            traced with a reserve). On a CPU it runs as it is: the static-shape step, equal to the
+            default one to float round-off. ``check_actions`` stays outside the graph.
         **overrides: any scenario field, e.g. ``tau_v=0.5``, ``n_uavs=9``.
 
     Example:
@@ -143,7 +152,8 @@ class FlockingEnv(EnvBase):
     def __init__(self, scenario: ScenarioConfig | str = "train", num_envs: int = 1,
                  device: str | torch.device = "cpu", seed: int | None = 0, *, reading: str | None = None,
                  policy_id: str | None = None, extras: str | Iterable[str] = (), compile_step: bool = False,
-                 check_actions: bool = True, reset_pool: int = 0, **overrides: Any) -> None:
+                 check_actions: bool = True, reset_pool: int = 0, capture_step: bool = False,
+                 **overrides: Any) -> None:
         if isinstance(scenario, ScenarioConfig) and not overrides and reading is None and policy_id is None:
             cfg = scenario if scenario.is_checked else scenario.check()  # checked once
         elif isinstance(scenario, (str, ScenarioConfig)):  # a name: the one helper composes it (Hydra)
@@ -177,17 +187,26 @@ class FlockingEnv(EnvBase):
         self._generator = torch.Generator(device=self.device)
         self.compile_step = bool(compile_step)
         self.check_actions = bool(check_actions)
-        # Compiled, the step measures every UAV pair and every (beam, obstacle) pair: static shapes.
-        self._transition = (torch.compile(functools.partial(transition, static_shapes=True), dynamic=False,
-                                          fullgraph=True, options=STEP_COMPILE_OPTIONS) if self.compile_step
-                            else transition)
+        self.capture_step = bool(capture_step)
+        # Compiled or captured, the step measures every UAV pair and every (beam, obstacle) pair: static
+        # shapes. Called (state, sensed, episode, action, normals): what changes, all tensors (what a
+        # captured function is given each call is copied into its graph's inputs); the obstacles and
+        # the scenario are bound (a graph holds them as they are).
+        step = functools.partial(transition, static_shapes=self.compile_step or self.capture_step)
+        if self.compile_step:
+            step = torch.compile(step, dynamic=False, fullgraph=True, options=STEP_COMPILE_OPTIONS)
+        self._transition = captured(functools.partial(step, static=self._static, cfg=cfg), self.device,
+                                    self.capture_step)
+        self._hand_out = captured(functools.partial(take_from_reserve, pool=reset_pool), self.device,
+                                  self.capture_step and reset_pool > 0)
         self._counted = False                     # whether step_and_maybe_reset counted the reserve's hand-out
         self._normals: dict | None = None         # sensor noise drawn before a whole compiled step
         self._whole_calls = 0                     # calls of the whole compiled step and reset
-        self._compiled_whole = bool(self.compile_step and reset_pool)  # read in the trace: never changes
+        # read in the trace: never changes
+        self._compiled_whole = bool(self.compile_step and reset_pool and not self.capture_step)
         if self._compiled_whole:
             # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
-            self._transition = functools.partial(transition, static_shapes=True)
+            self._transition = functools.partial(transition, static_shapes=True, static=self._static, cfg=cfg)
             self.compile(warmup=WHOLE_WARMUP, fullgraph=not self.check_actions, dynamic=False,
                          options={**STEP_COMPILE_OPTIONS, "guard_filter_fn": _without_memo_guards})
         self._agent_batch = torch.Size((num_envs, cfg.n_uavs))
@@ -474,10 +493,9 @@ class FlockingEnv(EnvBase):
         if done is None:  # as TorchRL's any_done: no done flags, nothing to reset
             return tensordict
         members, per_member = self._reserve_groups()
-        pool = self.reset_pool
         done = done.reshape(members, per_member).to(self.device)
         old = self.world.to_dict()
-        world, self._reserve_next = take_from_reserve(old, self._reserve.to_dict(), self._reserve_next, done, pool)
+        world, self._reserve_next = self._hand_out(old, self._reserve.to_dict(), self._reserve_next, done)
 
         def restrided(old: dict, new: dict) -> dict:
             # The world's own layout (the compiled step reads back what it wrote, as it wrote it).
@@ -534,7 +552,7 @@ class FlockingEnv(EnvBase):
         # Drawn before the step when the whole step and reset is compiled (a generator cannot be traced).
         normals = self._draw_noise(None) if self._normals is None else self._normals
         state, sensed, episode, reward, summary = self._transition(
-            state, world["sensed"].to_dict(), world["episode"].to_dict(), action, self._static, self.cfg, normals)
+            state, world["sensed"].to_dict(), world["episode"].to_dict(), action, normals=normals)
         # The step's outputs have the world's shapes by construction: no per-entry checks.
         self.world = TensorDict._new_unsafe({**state, "sensed": sensed, "episode": episode},
                                             batch_size=self.batch_size, device=self.device)
