@@ -122,7 +122,8 @@ def test_cudagraphs_is_refused_for_ppo_in_one_line():
     assert "\n" not in str(info.value)
 
 
-@pytest.mark.parametrize("scenario", ["train", "s4"])  # s4: sensor noise, drawn before the step and passed in
+# s4: sensor noise, drawn before the step and passed in; train3d: the 3-D world's constants
+@pytest.mark.parametrize("scenario", ["train", "s4", "train3d"])
 def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(scenario):
     """``capture_step=True`` (what ``cudagraphs=true`` gives the training env): the step and the
     reserve's hand-out wrapped in ``CudaGraphModule`` (a pass-through here). What a graph's
@@ -156,13 +157,14 @@ def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(
     td, td_twin = env.reset(), twin.reset()
     quiet = 0
     for _ in range(12):
-        action = torch.rand(4, 5, 2, generator=gen) * 2 - 1
+        action = torch.rand(4, 5, env.cfg.dims, generator=gen) * 2 - 1
         refills.clear()
         with HostReads() as reads:
             out, td = env.step_and_maybe_reset(td.set(("agents", "action"), action))
         want, td_twin = twin.step_and_maybe_reset(td_twin.set(("agents", "action"), action.clone()))
         if not refills:
             assert reads.total == 0, reads.table()
+            assert not reads.made, reads.made  # no copy from the host either (its constants are made once)
             quiet += 1
         for key in want.keys(True, True):
             torch.testing.assert_close(out[key], want[key], rtol=0, atol=0, equal_nan=True, msg=key)

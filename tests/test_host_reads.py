@@ -28,6 +28,15 @@ def test_the_counter_sees_each_kind_of_read_and_no_arithmetic():
     assert all(place.startswith("tests/") or place == "elsewhere" for _, place in reads.counts)
 
 
+def test_the_counter_notes_tensors_made_from_python_numbers():
+    x = torch.ones(3)
+    with HostReads() as reads:
+        torch.tensor([1.0, 2.0])
+        x.new_tensor([0.5])
+        torch.zeros_like(x) + 1.0  # made on the device: not noted
+    assert reads.total == 0 and sum(reads.made.values()) == 2 and all(p == "elsewhere" for p in reads.made), reads.made
+
+
 def test_reads_inside_a_captured_step_are_counted_apart():
     mask = torch.tensor([True, False])
 
@@ -96,3 +105,6 @@ def test_the_training_loop_reads_nothing_per_iteration(members):
     # tiny: 4 worlds (per member), 4 steps per batch; 22 iterations before counting, 12 counted.
     reads, iterations = count_reads("tiny", members, iterations=12, overrides=(*overrides, "reset_pool=600"))
     assert iterations == 12 and reads.total == 0, reads.table()
+    # Nor does it make a tensor from Python numbers (on a GPU a copy from the host): TorchRL's
+    # reset pads what it does not write with one per key and call; the reserve's hand-out does not.
+    assert not reads.made, reads.made

@@ -19,6 +19,10 @@ Reads inside a function that tensordict's ``CudaGraphModule`` records (the learn
 warmed up and recorded, and a replay never runs them (TorchRL's ``TanhNormal`` even skips its
 argument checks while a graph records).
 
+It also notes, in ``made``, the tensors made from Python numbers (``torch.tensor([...])``,
+``new_tensor``: ``lift_fresh``): free on a CPU, but each a copy from the host on a GPU, which
+waits and which a CUDA graph cannot record, so a step that makes one cannot be captured.
+
 It cannot see ``Tensor.tolist()`` or ``.numpy()`` of a CPU tensor (they read memory without
 dispatching an operator), nor what runs inside a compiled graph (it runs such code eagerly, as
 the compiled paths' eager twins).
@@ -95,13 +99,15 @@ class HostReads(TorchDispatchMode):
 
     ``counts``: a ``Counter`` of ``(operator, place)`` of the reads outside :data:`CAPTURED`
     functions; ``in_captured``: those inside them; ``total``: the sum of ``counts``;
-    ``table()``: one line per place, most first."""
+    ``table()``: one line per place, most first; ``made``: a ``Counter`` of the places that made
+    a tensor from Python numbers."""
 
     def __init__(self, captured: tuple[str, ...] = CAPTURED) -> None:
         super().__init__()
         self.captured = frozenset(captured)
         self.counts: collections.Counter[tuple[str, str]] = collections.Counter()
         self.in_captured: collections.Counter[tuple[str, str]] = collections.Counter()
+        self.made: collections.Counter[str] = collections.Counter()
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
@@ -109,6 +115,8 @@ class HostReads(TorchDispatchMode):
             stack = traceback.extract_stack()[:-1]
             inside = any(frame.name in self.captured for frame in stack)
             (self.in_captured if inside else self.counts)[(func.overloadpacket.__name__, _place(stack))] += 1
+        elif func.overloadpacket is aten.lift_fresh:
+            self.made[_place(traceback.extract_stack()[:-1])] += 1
         return func(*args, **kwargs)
 
     @property

@@ -506,8 +506,14 @@ class FlockingEnv(EnvBase):
         self.world = TensorDict._new_unsafe(restrided(old, world), batch_size=self.batch_size, device=self.device)
         mask = done.reshape(-1)
         self._restored = False
+        fresh = self._output()
+        # What a reset does not write (the action) is zeroed in the reset worlds, as TorchRL's padding
+        # does, with zeros made on the device: its pad is a tensor made from a Python number per key
+        # and call, a copy from the host on a GPU.
+        for key in set(tensordict.keys(True, True)) - set(fresh.keys(True, True)):
+            fresh.set(key, torch.zeros_like(tensordict.get(key)))
         # As TorchRL's reset with a "_reset" mask merges its output (torchrl.envs.utils._update_during_reset).
-        return tensordict.where(~mask, other=self._output(), out=tensordict, pad=0, update_batch_size=True)
+        return tensordict.where(~mask, other=fresh, out=tensordict, pad=0, update_batch_size=True)
 
     def _refill_reserve(self) -> None:
         """Keep the reserve's unused worlds, in order, and draw as many new ones after them."""

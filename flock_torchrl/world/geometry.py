@@ -18,12 +18,30 @@ environments, UAVs, beams or obstacles.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
+from typing import Sequence
+
 import torch
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
+
+
+def constant(values: Sequence[float], like: torch.Tensor) -> torch.Tensor:
+    """The numbers ``values`` as a 1-D tensor of ``like``'s dtype and device, made once per
+    values, dtype and device and then reused (read-only): a step copies nothing from the host,
+    which on a GPU waits for the device and cannot be recorded in a CUDA graph. Compiled code
+    gets them as constants of its graph."""
+    if torch.compiler.is_compiling():
+        return torch.tensor(list(values), dtype=like.dtype, device=like.device)
+    return _constant(tuple(values), like.dtype, like.device)
+
+
+@functools.lru_cache(maxsize=None)
+def _constant(values: tuple[float, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    return torch.tensor(values, dtype=dtype, device=device)
 
 
 def stored(x: torch.Tensor) -> torch.Tensor:

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import torch
 
-from .geometry import (Obstacles, cast_rays_3d, cast_rays_along, cast_rays_worlds_last, circular_mean, length,
-                       relative_angle, stored, wrap)
+from .geometry import (Obstacles, cast_rays_3d, cast_rays_along, cast_rays_worlds_last, circular_mean, constant,
+                       length, relative_angle, stored, wrap)
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
@@ -89,7 +89,7 @@ def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     Stored component by component (``[..., n_beams, 0]`` contiguous over the beams): the ray
     casts read each component along the beams, which compiled code then loads as whole vectors
     rather than gathering every other float."""
-    cos_o, sin_o = (torch.tensor(v, dtype=heading.dtype, device=heading.device) for v in beam_unit_table(n_beams))
+    cos_o, sin_o = (constant(v, heading) for v in beam_unit_table(n_beams))
     cos_h, sin_h = torch.cos(heading)[..., None], torch.sin(heading)[..., None]
     return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), 0).movedim(0, -1)
 
@@ -98,8 +98,7 @@ def ring_tables(rings, n_beams: int, like: torch.Tensor) -> tuple[torch.Tensor, 
     """``cos`` and ``sin`` of every beam's elevation, ring by ring, ``[len(rings) n_beams]`` each."""
     cos_e = [math.cos(e) for e in rings for _ in range(n_beams)]
     sin_e = [math.sin(e) for e in rings for _ in range(n_beams)]
-    return (torch.tensor(cos_e, dtype=like.dtype, device=like.device),
-            torch.tensor(sin_e, dtype=like.dtype, device=like.device))
+    return constant(cos_e, like), constant(sin_e, like)
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
@@ -120,8 +119,7 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
     """
     if rings is None and static_shapes:
         h = worlds_last(heading)                                      # [N, B]
-        cos_o, sin_o = (torch.tensor(v, dtype=h.dtype, device=h.device)[:, None, None]
-                        for v in beam_unit_table(n_beams))             # [K, 1, 1]
+        cos_o, sin_o = (constant(v, h)[:, None, None] for v in beam_unit_table(n_beams))  # [K, 1, 1]
         cos_h, sin_h = torch.cos(h), torch.sin(h)
         # beam_directions' formula, beams outermost: [K, N, B]
         dx, dy = cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o
@@ -216,7 +214,7 @@ def scan_observation(beams: torch.Tensor, n: int, max_range: float,
         return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
     n_beams = beams.shape[-1] // len(rings)
     alpha = wrap(beam_offsets(n_beams, beams.device, beams.dtype))[idx % n_beams]
-    elevation = torch.tensor(list(rings), dtype=beams.dtype, device=beams.device)[idx // n_beams]
+    elevation = constant(rings, beams)[idx // n_beams]
     return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi, elevation / math.pi),
                        -1).flatten(-2)
 
@@ -551,7 +549,7 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
     if neighbours.climb_difference is not None:
         parts.append(at_order(neighbours.climb_difference) / math.pi)
     slots = torch.stack(parts, -1)
-    missing = slots.new_tensor([1.0] + [0.0] * (len(parts) - 1))
+    missing = constant([1.0] + [0.0] * (len(parts) - 1), slots)
     slots = torch.where(present[..., None], slots, missing)
     if slots.shape[-2] < n:  # fewer other UAVs than slots
         pad = missing.expand(*slots.shape[:-2], n - slots.shape[-2], len(parts))

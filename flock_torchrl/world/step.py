@@ -23,7 +23,7 @@ from ..config import ScenarioConfig
 from ..config.scenario import FULL_HEIGHT
 from .dynamics import (action_to_command, clamp_altitude, clip_command, first_order_step, reflect_in_box,
                        update_attitude, update_heading)
-from .geometry import Obstacles, circular_mean, length, nearest_obstacle_distance, stored, wrap
+from .geometry import Obstacles, circular_mean, constant, length, nearest_obstacle_distance, stored, wrap
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
 from .reward import cohesion_range, total_reward
@@ -47,7 +47,7 @@ def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius
     if moving_position.shape[1]:
         moving = torch.cat((moving_position, torch.full_like(moving_position[..., :1], moving_radius)), -1)
         if static.is_3d:
-            moving = torch.cat((moving, torch.full_like(moving[..., :2], FULL_HEIGHT) * moving.new_tensor([-1.0, 1.0])),
+            moving = torch.cat((moving, torch.full_like(moving[..., :2], FULL_HEIGHT) * constant((-1.0, 1.0), moving)),
                                -1)
         circles = torch.cat((circles, moving), 1)
     if drawn_circles.shape[1]:
