@@ -94,8 +94,10 @@ def host_read_lines(recipe: str = "paper", members: int = 1, iterations: int = 2
     shown = " ".join(overrides)
     head = (f"host reads per iteration, {recipe} recipe, {'solo' if members == 1 else f'population of {members}'}"
             f"{', ' + shown if shown else ''}: {reads.total / n:.3f} ({captured / n:.2f} more inside the captured "
-            f"update, which a CUDA graph's replay never makes); {n} iterations counted")
-    return [head] + ["  " + line for line in reads.table(per=n).splitlines()]
+            f"update, which a CUDA graph's replay never makes); {n} iterations counted; tensors made from Python "
+            f"numbers (a copy from the host on a GPU): {sum(reads.made.values()) / n:.3f}")
+    made = [f"{count / n:8.3f}  made from numbers    {place}" for place, count in reads.made.most_common()]
+    return [head] + ["  " + line for line in [*reads.table(per=n).splitlines(), *made]]
 
 
 def main() -> None:
