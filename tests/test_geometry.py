@@ -217,3 +217,13 @@ def test_pairwise():
     assert offset[0, 1, 0].tolist() == [-3.0, -4.0]
     expected = torch.tensor([[0, 5, 1], [5, 0, math.sqrt(34)], [1, math.sqrt(34), 0]])
     assert torch.allclose(dist[0], expected)
+
+
+def test_a_constant_is_made_once_per_values_dtype_and_device():
+    from flock_torchrl.world.geometry import constant
+
+    like = torch.zeros(3, dtype=torch.float64)
+    first = constant([0.1, -2.0], like)
+    assert first.dtype == torch.float64 and first.tolist() == [0.1, -2.0]
+    assert constant((0.1, -2.0), like) is first  # reused: no tensor made from Python numbers again
+    assert constant([0.1, -2.0], like.float()).dtype == torch.float32

@@ -42,6 +42,7 @@ def _without_memo_guards(entries: Sequence[Any]) -> list[bool]:
     step. The memo caches a class attribute: its other entries cannot change what the step does."""
     return ["_TENSORCLASS_MEMO" not in entry.name for entry in entries]
 
+
 # Keys emitted on request (``extras=``): nobody pays for what nobody reads.
 EXTRAS = {
     "physics": (("agents", "position"), ("agents", "velocity"), ("agents", "heading"), "goal",
@@ -202,8 +203,7 @@ class FlockingEnv(EnvBase):
         self._counted = False                     # whether step_and_maybe_reset counted the reserve's hand-out
         self._normals: dict | None = None         # sensor noise drawn before a whole compiled step
         self._whole_calls = 0                     # calls of the whole compiled step and reset
-        # read in the trace: never changes
-        self._compiled_whole = bool(self.compile_step and reset_pool and not self.capture_step)
+        self._compiled_whole = bool(self.compile_step and reset_pool and not self.capture_step)  # read in the trace
         if self._compiled_whole:
             # Nothing left reads the host: the step and the hand-out are traced whole, with TorchRL's plumbing.
             self._transition = functools.partial(transition, static_shapes=True, static=self._static, cfg=cfg)
