@@ -1,6 +1,7 @@
 """Host reads per training iteration: what makes a GPU wait for the host, counted on any device.
 
-    .venv/bin/python -m benchmarks.host_reads [--iterations 200] [--recipe paper] [--members 1] [-- override ...]
+    .venv/bin/python -m benchmarks.host_reads [--iterations 200] [--recipe paper] [--members 1] [--launches]
+        [-- override ...]
 
 Trains Policy3-G under ``--recipe`` with ``cudagraphs=true`` (the captured update; a pass-through
 on a CPU) and the env's static-shape step run eagerly (the step ``compile=true`` compiles, so
@@ -8,7 +9,8 @@ that :class:`~flock_torchrl.run.host_reads.HostReads` sees inside it), warms up 
 recipe's random frames plus 20 iterations, counts ``--iterations`` iterations of the loop
 (collection, buffer, sampling, update, bookkeeping; logging, evaluation and checkpoints are
 off) and prints the reads per iteration by the line that made them. Reads inside the captured
-update are listed apart: a CUDA graph's replay never makes them.
+update are listed apart: a CUDA graph's replay never makes them. ``--launches``: also the
+kernels launched per iteration outside the captured graphs (one by one on a GPU) and inside.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pathlib import Path
 if not __package__:  # `python benchmarks/host_reads.py`: the repository's root, so `benchmarks` imports
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from flock_torchrl.capture import captured  # noqa: E402
 from flock_torchrl.config import TrainConfig  # noqa: E402
 from flock_torchrl.run.host_reads import HostReads  # noqa: E402
 from flock_torchrl.run.population import PopulationTraining  # noqa: E402
@@ -29,6 +32,7 @@ from flock_torchrl.run.trainer import Training, make_train_config  # noqa: E402
 from flock_torchrl.world.step import transition  # noqa: E402
 
 WARMUP = 20  # iterations after the random frames before counting: every capture's warm-up is over
+LAUNCH_PLACES = 8  # places listed under the kernel count
 
 
 def counted(cls: type[Training]) -> type[Training]:
@@ -41,15 +45,18 @@ def counted(cls: type[Training]) -> type[Training]:
         start = 0
         reads: HostReads | None = None
         iterations = 0
+        launches = False
+        as_compiled = True
 
         def _build(self, payload):
             super()._build(payload)
-            for env in self.envs:
-                env._transition = functools.partial(transition, static_shapes=True, static=env._static, cfg=env.cfg)
+            for env in self.envs if type(self).as_compiled else ():  # as the env builds it with compile_step=False (captured with cudagraphs=true)
+                env._transition = captured(functools.partial(transition, static_shapes=True, static=env._static,
+                                                             cfg=env.cfg), env.device, env.capture_step)
 
         def _consume(self, batches):
             if self.counters["iterations"] == type(self).start:
-                type(self).reads = HostReads().__enter__()
+                type(self).reads = HostReads(launches=type(self).launches).__enter__()
             out = super()._consume(batches)
             if type(self).reads is not None:
                 type(self).iterations += 1
@@ -66,8 +73,11 @@ def counted(cls: type[Training]) -> type[Training]:
 
 
 def count_reads(recipe: str = "paper", members: int = 1, iterations: int = 200,
-                overrides: tuple[str, ...] = ()) -> tuple[HostReads, int]:
-    """``(the reads counted, the iterations they span)`` of a short run (see the module's docstring)."""
+                overrides: tuple[str, ...] = (), launches: bool = False,
+                as_compiled: bool = True) -> tuple[HostReads, int]:
+    """``(the reads counted, the iterations they span)`` of a short run (see the module's
+    docstring); ``launches``: the kernels launched too (``HostReads(launches=True)``, slower);
+    ``as_compiled=False``: the env steps as the run builds it (not the static-shape step)."""
     base = make_train_config("policy3_g", recipe, ["progress=false", "logger=none", "reading=paper_fit",
                                                    *overrides])
     exp = TrainConfig.from_config(base).experiment
@@ -81,15 +91,15 @@ def count_reads(recipe: str = "paper", members: int = 1, iterations: int = 200,
         "experiment.eval_every_frames=0", "experiment.checkpoint_every_frames=0", "experiment.eval_episodes=1",
         *overrides]))
     cls = counted(PopulationTraining if members > 1 else Training)
-    cls.start = start
+    cls.start, cls.launches, cls.as_compiled = start, launches, as_compiled
     with tempfile.TemporaryDirectory() as folder:
         cls(cfg, Path(folder) / "run").run()
     return cls.reads, cls.iterations
 
 
 def host_read_lines(recipe: str = "paper", members: int = 1, iterations: int = 200,
-                    overrides: tuple[str, ...] = ()) -> list[str]:
-    reads, n = count_reads(recipe, members, iterations, overrides)
+                    overrides: tuple[str, ...] = (), launches: bool = False) -> list[str]:
+    reads, n = count_reads(recipe, members, iterations, overrides, launches)
     captured = sum(reads.in_captured.values())
     shown = " ".join(overrides)
     head = (f"host reads per iteration, {recipe} recipe, {'solo' if members == 1 else f'population of {members}'}"
@@ -97,7 +107,32 @@ def host_read_lines(recipe: str = "paper", members: int = 1, iterations: int = 2
             f"update, which a CUDA graph's replay never makes); {n} iterations counted; tensors made from Python "
             f"numbers (a copy from the host on a GPU): {sum(reads.made.values()) / n:.3f}")
     made = [f"{count / n:8.3f}  made from numbers    {place}" for place, count in reads.made.most_common()]
-    return [head] + ["  " + line for line in [*reads.table(per=n).splitlines(), *made]]
+    lines = [head] + ["  " + line for line in [*reads.table(per=n).splitlines(), *made]]
+    if launches:
+        outside = sum(reads.launched.values())
+        lines.append(f"kernels per iteration, the same run: {outside / n:.1f} launched one by one (each a launch "
+                     f"the host pays for on a GPU), {reads.launched_in_graphs / n:.1f} inside the captured graphs; "
+                     "the most by place:")
+        lines += [f"  {count / n:8.2f}  {place}" for place, count in reads.launched.most_common(LAUNCH_PLACES)]
+    return lines
+
+
+def launch_lines(recipe: str = "paper", iterations: int = 200) -> list[str]:
+    """The kernels a solo loop of ``recipe`` launches one by one per iteration, as it runs eagerly
+    (``cudagraphs=false``, ``reset_pool=0``: the default step) against captured (``cudagraphs=true``
+    with a reserve: the update, the policy, the static-shape step and the hand-out as graphs), and
+    where each launches them."""
+    runs = {}
+    for name, overrides in (("uncaptured", ("cudagraphs=false", "reset_pool=0")), ("captured", ("reset_pool=256",))):
+        reads, n = count_reads(recipe, 1, iterations, overrides, launches=True, as_compiled=False)
+        runs[name] = (sum(reads.launched.values()) / n, reads.launched_in_graphs / n, reads.launched, n)
+    (plain, _, plain_places, n), (ours, graphs, places, _) = runs["uncaptured"], runs["captured"]
+    lines = [f"kernels launched one by one per iteration, {recipe} recipe, solo ({n} iterations): {ours:.1f} "
+             f"captured (cudagraphs=true reset_pool=256; {graphs:.1f} more inside its graphs) against {plain:.1f} "
+             f"uncaptured (cudagraphs=false reset_pool=0): {plain / ours:.1f}x fewer"]
+    for name, counts in (("uncaptured", plain_places), ("captured", places)):
+        lines += [f"  {name:10s} {count / n:8.2f}  {place}" for place, count in counts.most_common(LAUNCH_PLACES)]
+    return lines
 
 
 def main() -> None:
@@ -105,9 +140,10 @@ def main() -> None:
     parser.add_argument("--recipe", default="paper")
     parser.add_argument("--members", type=int, default=1)
     parser.add_argument("--iterations", type=int, default=200)
+    parser.add_argument("--launches", action="store_true", help="count the kernels launched too")
     parser.add_argument("overrides", nargs="*", help="Hydra overrides of the run (e.g. reset_pool=64)")
     args = parser.parse_args()
-    for line in host_read_lines(args.recipe, args.members, args.iterations, tuple(args.overrides)):
+    for line in host_read_lines(args.recipe, args.members, args.iterations, tuple(args.overrides), args.launches):
         print(line, flush=True)
 
 

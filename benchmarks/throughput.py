@@ -45,7 +45,7 @@ from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
 from benchmarks.gpu import gpu_lines, projection_line
-from benchmarks.host_reads import host_read_lines
+from benchmarks.host_reads import host_read_lines, launch_lines
 from benchmarks.population import population_lines
 from benchmarks.reset import reset_lines
 from benchmarks.threed import threed_lines
@@ -349,6 +349,8 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     for members, pool in ((1, 0), (1, 256), (10, 256)):
         text += "\n" + "\n".join(host_read_lines("paper", members, iterations=50 if cfg.quick else 200,
                                                   overrides=(f"reset_pool={pool}",)))
+    # The kernels launched one by one per iteration, uncaptured against captured (a GPU's launch cost).
+    text += "\n" + "\n".join(launch_lines("paper", iterations=50 if cfg.quick else 200))
     # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
     text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
     # The 3-D step against the 2-D one, per UAV-step (benchmarks/threed.py).

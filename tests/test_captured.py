@@ -159,12 +159,19 @@ def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(
     for _ in range(12):
         action = torch.rand(4, 5, env.cfg.dims, generator=gen) * 2 - 1
         refills.clear()
-        with HostReads() as reads:
+        with HostReads(launches=True) as reads:
             out, td = env.step_and_maybe_reset(td.set(("agents", "action"), action))
         want, td_twin = twin.step_and_maybe_reset(td_twin.set(("agents", "action"), action.clone()))
         if not refills:
             assert reads.total == 0, reads.table()
             assert not reads.made, reads.made  # no copy from the host either (its constants are made once)
+            # The step's kernels run inside its graph: none of its modules launches one outside but
+            # the sensor noise's draw, made before the step from the env's generator (and a refill, on
+            # the host, draws its worlds with them).
+            step_modules = tuple(f"flock_torchrl/world/{m}.py" for m in ("step", "sensors", "geometry", "instinct",
+                                                                          "dynamics", "reward"))
+            outside = [p for p in reads.launched if p.startswith(step_modules) and not p.endswith(":draw")]
+            assert reads.launched_in_graphs > 100 and not outside, reads.launched
             quiet += 1
         for key in want.keys(True, True):
             torch.testing.assert_close(out[key], want[key], rtol=0, atol=0, equal_nan=True, msg=key)

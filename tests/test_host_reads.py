@@ -37,6 +37,22 @@ def test_the_counter_notes_tensors_made_from_python_numbers():
     assert reads.total == 0 and sum(reads.made.values()) == 2 and all(p == "elsewhere" for p in reads.made), reads.made
 
 
+def test_kernels_are_counted_apart_from_views_and_by_whether_a_graph_holds_them():
+    from flock_torchrl.capture import captured
+
+    x = torch.ones(4, 3)
+    inside = captured(lambda t: (t * 2).sum(0), torch.device("cpu"))
+    with HostReads(launches=True) as reads:
+        y = x.reshape(12)                                      # a view: no kernel
+        z = x + 1.0                                            # a kernel, outside any graph
+        z.add_(1.0)                                            # in place: a kernel too
+        inside(x)  # inside a captured function: its two kernels, and (on a CPU) the wrapper's copy of x
+    assert y.data_ptr() == x.data_ptr()
+    assert sum(reads.launched.values()) == 2 and reads.launched_in_graphs == 3, (reads.launched,
+                                                                                reads.launched_in_graphs)
+    assert reads.total == 0 and not reads.made
+
+
 def test_reads_inside_a_captured_step_are_counted_apart():
     mask = torch.tensor([True, False])
 

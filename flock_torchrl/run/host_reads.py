@@ -23,6 +23,13 @@ It also notes, in ``made``, the tensors made from Python numbers (``torch.tensor
 ``new_tensor``: ``lift_fresh``): free on a CPU, but each a copy from the host on a GPU, which
 waits and which a CUDA graph cannot record, so a step that makes one cannot be captured.
 
+With ``launches=True`` it also counts the operators that launch a kernel on a GPU (all but
+views, bare allocations and the reads): ``launched``, by the line of flock_torchrl or TorchRL
+that asked, those outside every function tensordict's ``CudaGraphModule`` wraps (on a GPU each
+is a launch the host pays for, one by one), and ``launched_in_graphs``, those inside (on a GPU
+a replay launches them as one graph). A CPU runs the wrapped functions as they are, so the
+count is the same here as there.
+
 It cannot see ``Tensor.tolist()`` or ``.numpy()`` of a CPU tensor (they read memory without
 dispatching an operator), nor what runs inside a compiled graph (it runs such code eagerly, as
 the compiled paths' eager twins).
@@ -78,16 +85,31 @@ def _waits(source: torch.Tensor, target: torch.device, non_blocking: bool) -> bo
 
 # The functions CudaGraphModule records (flock_torchrl.policies: the learners' whole update).
 CAPTURED = ("_captured_step",)
+# Allocations without a kernel, and the reads (a wait, not a launch).
+_NO_KERNEL = {aten.empty, aten.empty_strided, aten._local_scalar_dense}
 
 
-def _place(stack: traceback.StackSummary) -> str:
-    """``package/file.py:line:function`` of the innermost frame in one of :data:`_PACKAGES`
+def _launches(func: Any) -> bool:
+    """Whether ``func`` runs a kernel: not a view (an output aliasing an input without writing
+    it), a bare allocation or a read of a value."""
+    if func.overloadpacket in _NO_KERNEL:
+        return False
+    return not any(r.alias_info is not None and not r.alias_info.is_write for r in func._schema.returns)
+
+
+def _in_graph(stack: traceback.StackSummary) -> bool:
+    """Whether a frame of ``stack`` is a call through tensordict's ``CudaGraphModule``."""
+    return any(frame.filename.replace("\\", "/").endswith("tensordict/nn/cudagraphs.py") for frame in stack)
+
+
+def _place(stack: traceback.StackSummary, packages: tuple[str, ...] = _PACKAGES) -> str:
+    """``package/file.py:line:function`` of the innermost frame in one of ``packages``
     (outside this module), or ``"elsewhere"``."""
     for frame in reversed(stack):
         name = frame.filename.replace("\\", "/")
         if name.endswith("run/host_reads.py"):
             continue
-        for package in _PACKAGES:
+        for package in packages:
             at = name.rfind("/" + package)
             if at >= 0:
                 return f"{name[at + 1:]}:{frame.lineno}:{frame.name}"
@@ -100,11 +122,15 @@ class HostReads(TorchDispatchMode):
     ``counts``: a ``Counter`` of ``(operator, place)`` of the reads outside :data:`CAPTURED`
     functions; ``in_captured``: those inside them; ``total``: the sum of ``counts``;
     ``table()``: one line per place, most first; ``made``: a ``Counter`` of the places that made
-    a tensor from Python numbers."""
+    a tensor from Python numbers; with ``launches``, ``launched`` (a ``Counter`` by place) and
+    ``launched_in_graphs`` (a number), see the module's docstring."""
 
-    def __init__(self, captured: tuple[str, ...] = CAPTURED) -> None:
+    def __init__(self, captured: tuple[str, ...] = CAPTURED, launches: bool = False) -> None:
         super().__init__()
         self.captured = frozenset(captured)
+        self.launches = launches
+        self.launched: collections.Counter[str] = collections.Counter()
+        self.launched_in_graphs = 0
         self.counts: collections.Counter[tuple[str, str]] = collections.Counter()
         self.in_captured: collections.Counter[tuple[str, str]] = collections.Counter()
         self.made: collections.Counter[str] = collections.Counter()
@@ -117,6 +143,12 @@ class HostReads(TorchDispatchMode):
             (self.in_captured if inside else self.counts)[(func.overloadpacket.__name__, _place(stack))] += 1
         elif func.overloadpacket is aten.lift_fresh:
             self.made[_place(traceback.extract_stack()[:-1])] += 1
+        if self.launches and _launches(func):
+            stack = traceback.extract_stack()[:-1]
+            if _in_graph(stack):
+                self.launched_in_graphs += 1
+            else:  # who asked: tensordict's own lines would name every tensordict operation alike
+                self.launched[_place(stack, ("flock_torchrl/", "torchrl/"))] += 1
         return func(*args, **kwargs)
 
     @property
