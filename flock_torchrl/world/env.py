@@ -217,6 +217,7 @@ class FlockingEnv(EnvBase):
                                                                        device=self.device)]
             self._reserve_next = torch.zeros(members, dtype=torch.long, device=self.device)
             self._empty_reserve()
+            self._fresh_summary = summary_values(new_accumulator(num_envs, self.device), cfg.collision_distance)
         self._sensed_once = False
         self._restored = False
         self.busy_seconds = 0.0  # wall time spent in reset and step (a trainer's time split reads it)
@@ -506,7 +507,8 @@ class FlockingEnv(EnvBase):
         self.world = TensorDict._new_unsafe(restrided(old, world), batch_size=self.batch_size, device=self.device)
         mask = done.reshape(-1)
         self._restored = False
-        fresh = self._output()
+        # Every reset world is fresh: its episode summary is a fresh accumulator's, made once.
+        fresh = self._output(self._fresh_summary)
         # What a reset does not write (the action) is zeroed in the reset worlds, as TorchRL's padding
         # does, with zeros made on the device: its pad is a tensor made from a Python number per key
         # and call, a copy from the host on a GPU.
