@@ -17,6 +17,10 @@ from typing import Callable
 
 import torch
 
+# Without CUDA every CudaGraphModule (ours, and TorchRL's around a collector's policy) calls its
+# function as it is, which the docs say; its warning of that would only repeat it.
+warnings.filterwarnings("ignore", message="This module is instantiated on a machine without CUDA")
+
 # Calls that run as they are before the CUDA graph is recorded (an optimiser's state and a
 # compiled function exist by then): tensordict's CudaGraphModule ``warmup``.
 CUDAGRAPH_WARMUP = 3
@@ -30,6 +34,4 @@ def captured(function: Callable, device: torch.device, enabled: bool = True) -> 
         return function
     from tensordict.nn import CudaGraphModule
 
-    with warnings.catch_warnings():  # on a CPU: "calls to this instance will just pass through"
-        warnings.filterwarnings("ignore", message="This module is instantiated on a machine without CUDA")
-        return CudaGraphModule(function, warmup=CUDAGRAPH_WARMUP, device=device if device.type == "cuda" else None)
+    return CudaGraphModule(function, warmup=CUDAGRAPH_WARMUP, device=device if device.type == "cuda" else None)
