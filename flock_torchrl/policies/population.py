@@ -180,7 +180,7 @@ class PopulationLearner:
             self._losses = torch.vmap(member_losses, (0, 1), randomness="different")
         else:  # one member: the same loss called directly (vmap's batched kernels would round differently)
             self._losses = _unbatched(member_losses, 1)
-        # Captured (learners.captured): the whole step is one function without a host read.
+        # Captured (flock_torchrl.capture): the whole step is one function without a host read.
         self.cudagraphs = bool(cudagraphs)
         self.finite = FiniteLosses(tuple(_TERMS[name]), env.device, self.members)
         self._update = captured(self._captured_step, env.device, self.cudagraphs)
