@@ -167,6 +167,7 @@ def test_reproduce_end_to_end_with_a_scripted_policy(tmp_path):
     assert "INCOMPLETE" in (tmp_path / "results" / "fidelity.md").read_text()
 
 
+@pytest.mark.slow  # a whole reproduce run over shipped checkpoints (~10 s)
 def test_tables_name_a_checkpoint_by_its_path_in_the_working_directory(tmp_path, monkeypatch):
     # A shipped table must not carry this machine's absolute path (checkpoints/ is inside the
     # repository; the seed and episode rows name it from there).

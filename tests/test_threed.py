@@ -515,6 +515,7 @@ def test_ship_refuses_an_unknown_collection(tmp_path):
     assert proc.returncode != 0 and "only" in proc.stderr and "threed" in proc.stderr, proc.stderr
 
 
+@pytest.mark.slow  # six shipped checkpoints flown and two GIFs drawn (~20 s)
 def test_publish_threed_writes_the_table_verdicts_and_figures(tmp_path, monkeypatch):
     """make publish-threed's writer on two episodes: the seeds' rows, the pooled table whose cells are
     the seeds' means with scipy's bootstrap interval, section 11's verdicts, the GIFs and the frames."""
