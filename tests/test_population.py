@@ -344,6 +344,7 @@ def test_a_populations_checkpoint_loads_one_member_by_name_or_lists_them(populat
     assert (one.member, one.seed) == (1, 5)
 
 
+@pytest.mark.slow  # scripts/evaluate.py in a process of its own (~8 s)
 def test_evaluate_takes_the_policy_and_member_of_a_checkpoint(population_run, tmp_path):
     """``checkpoint=`` alone: the checkpoint's policy (Policy1-G, not the app's default Policy3-G)
     and its world; ``member=`` one member, said in the output; a conflicting ``policy=`` is one line."""

@@ -473,6 +473,7 @@ def tiny_3d_run(tmp_path_factory):
     return tmp / "run"
 
 
+@pytest.mark.slow  # a tiny 3-D training and two runs of scripts/ship.py (~10 s)
 def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3d_run, tmp_path):
     import shutil
 
