@@ -137,14 +137,15 @@ class HostReads(TorchDispatchMode):
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
-        if _reads(func, args, kwargs):
-            stack = traceback.extract_stack()[:-1]
+        reads, made = _reads(func, args, kwargs), func.overloadpacket is aten.lift_fresh
+        launches = self.launches and _launches(func)
+        stack = traceback.extract_stack()[:-1] if reads or made or launches else None  # once: it is slow
+        if reads:
             inside = any(frame.name in self.captured for frame in stack)
             (self.in_captured if inside else self.counts)[(func.overloadpacket.__name__, _place(stack))] += 1
-        elif func.overloadpacket is aten.lift_fresh:
-            self.made[_place(traceback.extract_stack()[:-1])] += 1
-        if self.launches and _launches(func):
-            stack = traceback.extract_stack()[:-1]
+        elif made:
+            self.made[_place(stack)] += 1
+        if launches:
             if _in_graph(stack):
                 self.launched_in_graphs += 1
             else:  # who asked: tensordict's own lines would name every tensordict operation alike
