@@ -127,8 +127,9 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
     ``print_each``); a loop row that does not finish within ``row_timeout`` seconds says so.
     ``compile``: the loops' ``compile`` (``false``: what finished within a minute on an H200;
     with ``true``, ``step`` for populations, no row finished 1000 frames within 60 s there,
-    compilation included). ``device="cpu"`` with small sizes is a dry run of the same code
-    (``tests/test_benchmark.py``), so a GPU's scarce minutes are not spent finding its bugs."""
+    compilation included). ``device="cpu"`` with small sizes is a dry run of the same code, and
+    ``tests/test_benchmark.py`` runs them with ``device="cuda"`` on CUDA simulated on the CPU
+    (``tests/simulated_cuda.py``), so a GPU's scarce minutes are not spent finding their bugs."""
     from benchmarks.throughput import env_rows, format_rows
 
     lines: list[str] = []

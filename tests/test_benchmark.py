@@ -4,8 +4,10 @@ never asserted: a timed unit test would measure the machine, not the code)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -118,14 +120,22 @@ def test_the_projection_line_divides_the_studys_updates_by_the_measured_rates():
                                                    "fast 0 member-updates/s)")
 
 
-@pytest.mark.slow  # four short training runs in child processes
-def test_the_gpu_rows_run_their_code_as_a_dry_run_on_a_cpu():
-    """benchmarks/gpu.py's every row, tiny and on the CPU: what a GPU would run, minus CUDA."""
+@pytest.mark.slow  # five short training runs in child processes
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is here: make benchmark runs these rows on it")
+def test_the_gpu_rows_run_on_simulated_cuda(monkeypatch):
+    """benchmarks/gpu.py's every row, tiny, with ``device="cuda"`` on CUDA simulated on the CPU
+    (``tests/simulated_cuda.py``; the loops' child processes too, through its ``sitecustomize.py``):
+    what a GPU runs, every tensor on the device, minus CUDA graphs and pinned memory."""
     from benchmarks.gpu import gpu_lines
 
-    lines = gpu_lines(device="cpu", frames=40, members=(2,), fast_frames=64, update_members=(1, 2), update_calls=2,
-                      env_batch=8)
-    assert lines[0].startswith("GPU: none (cpu: a dry run)")
+    from simulated_cuda import simulated_cuda
+
+    site = Path(__file__).resolve().parent / "simulated_cuda_site"
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")])))
+    with simulated_cuda():
+        lines = gpu_lines(device="cuda", frames=40, members=(2,), fast_frames=64, update_members=(1, 2),
+                          update_calls=2, env_batch=8)
+    assert lines[0].startswith("GPU: simulated CUDA (CPU)")
     assert sum("GPU update alone" in line for line in lines) == 2
     loops = [line for line in lines if line.startswith("GPU loop")]
     assert len(loops) == 5 and sum("reset_pool=0:" in line for line in loops) == 1, loops

@@ -746,6 +746,7 @@ def test_make_reproduce_table3_compares_every_cell_with_the_shipped_table_and_sa
     assert cfg.compare_to == "results/literal/table3.csv" and sorted(cfg.compare_tolerance) == sorted(COMPARED)
 
 
+@pytest.mark.slow  # ~7 s: a tiny reproduction, then the comparison
 def test_a_tiny_table_beside_a_crafted_reference_is_judged_cell_by_cell(tmp_path):
     """Policy-MA over 4 episodes, then beside a reference crafted from it: one cell moved out
     of tolerance, one within; then beside a reference of another episode count."""

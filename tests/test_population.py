@@ -449,6 +449,7 @@ def test_scaling_names_the_member_of_a_population_it_flies(population_run, tmp_p
     assert rows[-1]["policy"] == "Policy1-G [tiny, seed 4, member=0 of a population]"
 
 
+@pytest.mark.slow  # ~7 s: each member evaluated alone, then all together
 def test_members_evaluated_together_fly_the_episodes_each_would_fly_alone():
     """evaluate_members (a population's evaluation: K actors, one batched rollout) gives each
     member the episodes evaluate() gives it alone: the same starts, the same outcomes, metrics to
