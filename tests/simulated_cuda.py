@@ -26,6 +26,7 @@ from typing import Any, Callable
 from unittest import mock
 
 import torch
+from tensordict import is_tensor_collection
 from torch.overrides import TorchFunctionMode
 from torch.utils._pytree import tree_flatten, tree_map
 
@@ -203,26 +204,18 @@ def _parameter(new: Callable) -> Callable:
 
 
 def _back_on_device(out: Any) -> Any:
-    from tensordict import is_tensor_collection
-
     def one(o: Any) -> Any:
         if is_tensor_collection(o):
             return o.apply(lambda t: t.as_subclass(OnGpu) if type(t) is torch.Tensor else t)
         return o.as_subclass(OnGpu) if type(o) is torch.Tensor else o
 
-    return tree_map(one, out, is_leaf=is_tensor_collection_leaf)
-
-
-def is_tensor_collection_leaf(o: Any) -> bool:
-    from tensordict import is_tensor_collection
-
-    return is_tensor_collection(o)
+    return tree_map(one, out, is_leaf=is_tensor_collection)
 
 
 def _holds_device_tensors(tree: Any) -> bool:
-    for leaf in tree_flatten(tree, is_leaf=is_tensor_collection_leaf)[0]:
-        if isinstance(leaf, OnGpu) or (is_tensor_collection_leaf(leaf) and any(
-                isinstance(t, OnGpu) for t in leaf.values(True, True))):
+    for leaf in tree_flatten(tree, is_leaf=is_tensor_collection)[0]:
+        tensors = leaf.values(True, True) if is_tensor_collection(leaf) else [leaf]
+        if any(isinstance(t, OnGpu) for t in tensors):
             return True
     return False
 
