@@ -4,9 +4,10 @@ Inside :func:`simulated_cuda` a tensor asked for on ``cuda`` (``device="cuda"``,
 ``.cuda()``, a module's ``.to``) is a CPU tensor of the class :class:`OnGpu`, which says it lives
 on ``cuda:0`` and, as a tensor there would, refuses to meet a CPU tensor of one or more dimensions
 in an operation (a CPU scalar, a CPU index or a copy across is fine, as on CUDA). A random draw
-for the device with a CPU generator is refused too. So code that makes a tensor on the CPU and
-uses it with the device's raises here the error it would raise on a GPU, and code that runs here
-to the end keeps every tensor of its step where the device's tensors are.
+for the device with a CPU generator is refused too, and so is a CPU tensor given to a CUDA graph
+(``CudaGraphModule``), whose replays would never see its new values. So code that makes a tensor
+on the CPU and uses it with the device's raises here the error it would raise on a GPU, and code
+that runs here to the end keeps every tensor of its step where the device's tensors are.
 
 What it does not simulate: CUDA graphs (``CudaGraphModule`` calls its function as it is, as
 without CUDA), pinned memory (``pin_memory()`` is the tensor itself), streams, the CUDA
@@ -244,6 +245,24 @@ def _patches() -> list:
         with mock.patch("torch.cuda.is_available", lambda: False):
             init(self, *args, **kwargs)
 
+    call = CudaGraphModule.__call__
+
+    def given_the_devices_tensors(self, *args, **kwargs):  # a graph replays on its own copies of them
+        leaves = []
+        for leaf in tree_flatten((args, kwargs), is_leaf=is_tensor_collection)[0]:
+            if is_tensor_collection(leaf):
+                keys = getattr(self, "in_keys", None)
+                leaf = leaf.select(*keys, strict=False) if keys else leaf
+                leaves.extend(leaf.values(True, True))
+            elif isinstance(leaf, torch.Tensor):
+                leaves.append(leaf)
+        device = getattr(self, "device", None)
+        if (_names_cuda(device) or any(isinstance(t, OnGpu) for t in leaves)) and not all(
+                isinstance(t, OnGpu) for t in leaves):
+            _refuse(call, "a CUDA graph is given a CPU tensor: its replays would not see the tensor's new "
+                          "values (CudaGraphModule)")
+        return call(self, *args, **kwargs)
+
     cuda = {"is_available": lambda: True, "device_count": lambda: 1, "current_device": lambda: 0,
             "_lazy_init": lambda: None, "synchronize": lambda *a, **k: None,
             "is_current_stream_capturing": lambda: False, "get_device_name": lambda *a, **k: "simulated CUDA (CPU)",
@@ -260,6 +279,7 @@ def _patches() -> list:
             mock.patch("torch.compile", _eager_compile),
             mock.patch.object(torch.nn.Parameter, "__new__", _parameter(torch.nn.Parameter.__new__)),
             mock.patch.object(CudaGraphModule, "__init__", without_graphs),
+            mock.patch.object(CudaGraphModule, "__call__", given_the_devices_tensors),
             # a module's .to("cuda") makes new parameters (of the device's class), as for a subclass
             mock.patch("torch.__future__._overwrite_module_params_on_conversion", True)]
 

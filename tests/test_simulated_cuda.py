@@ -47,6 +47,18 @@ def test_the_simulated_device_refuses_what_cuda_refuses_and_allows_what_it_allow
         assert type(torch.ones(2).to("cuda").to("cpu")) is torch.Tensor
 
 
+def test_a_graph_of_the_simulated_device_is_given_only_its_tensors():
+    """A CUDA graph replays on its own copies of its inputs: a CPU tensor given to one would be read
+    at the capture only, so the simulation refuses it."""
+    from flock_torchrl.capture import captured
+
+    with simulated_cuda():
+        double = captured(lambda x: x * 2, torch.device("cuda"))
+        assert double(torch.ones(2, device="cuda")).device.type == "cuda"
+        with pytest.raises(RuntimeError, match="a CUDA graph is given a CPU tensor"):
+            double(torch.ones(2))
+
+
 def test_a_module_and_its_optimiser_live_on_the_simulated_device_and_save_as_the_cpu_reads_them():
     with simulated_cuda():
         layer = torch.nn.Linear(3, 2).to("cuda")
