@@ -126,6 +126,7 @@ def _call(func: Callable, args: tuple, kwargs: dict) -> Any:
     tensors = [a for a in tree_flatten((args, kwargs))[0] if isinstance(a, torch.Tensor)]
     on_gpu = any(isinstance(a, OnGpu) for a in tensors)
     target = _target(func, args, kwargs)
+    on_device = target == "cuda" or (target is None and on_gpu)  # where the result goes
     checked = [args[0]] if func in _INDEXING else tensors
     # Inside torch.vmap the tensors are functorch's wrappers, whose class says nothing: not checked.
     inside_vmap = any(torch._C._functorch.is_functorch_wrapped_tensor(a) for a in checked)
@@ -138,9 +139,8 @@ def _call(func: Callable, args: tuple, kwargs: dict) -> Any:
                       "to host memory first.")
     generator = kwargs.get("generator")
     if isinstance(generator, torch._C.Generator):
-        wants_gpu = target == "cuda" or (target is None and on_gpu)
-        if wants_gpu != isinstance(generator, _Generator):
-            _refuse(func, f"Expected a '{'cuda' if wants_gpu else 'cpu'}' device type for generator")
+        if on_device != isinstance(generator, _Generator):
+            _refuse(func, f"Expected a '{'cuda' if on_device else 'cpu'}' device type for generator")
     if func is torch.Tensor.pin_memory:
         return args[0]
     if func is torch.Tensor.is_pinned:
@@ -152,16 +152,14 @@ def _call(func: Callable, args: tuple, kwargs: dict) -> Any:
     args, kwargs = tree_map(_to_cpu_name, args), tree_map(_to_cpu_name, kwargs)
     with torch._C.DisableTorchFunctionSubclass():
         out = func(*args, **kwargs)
-        if func in (torch.Tensor.to, torch.Tensor.cpu) and out is args[0] and target is not None \
-                and (target == "cuda") != on_gpu:
+        if func in (torch.Tensor.to, torch.Tensor.cpu) and out is args[0] and on_device != on_gpu:
             out = out.clone()  # a move across devices copies (the data here stays where it was)
     if func in _TO_HOST:
         return out
     if func is torch.Tensor.copy_:  # into its destination, which stays where it is
         return args[0]
-    if func is torch.Tensor.to and out is args[0] and (target is None or (target == "cuda") == on_gpu):
+    if func is torch.Tensor.to and out is args[0]:  # already there
         return args[0]
-    on_device = target == "cuda" or (target is None and on_gpu)
     if on_device:
         return tree_map(lambda o: o.as_subclass(OnGpu) if isinstance(o, torch.Tensor) and not isinstance(o, OnGpu)
                         else o, out)
