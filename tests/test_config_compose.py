@@ -238,7 +238,8 @@ def test_every_train_composition_keeps_the_values_main_composed(every):
         assert tree["scenario"].pop("dims") == 2, name
         assert tree["scenario"].pop("chi_range") == [-math.pi, math.pi], name
         for key in ("climb_max", "altitude", "laser_rings", "spawn_altitude", "spawn_height", "goal_altitude",
-                    "spheres", "random_heights", "random_spheres", "random_sphere_altitude"):
+                    "spheres", "random_heights", "random_spheres", "random_sphere_altitude", "laser_vertical",
+                    "tangential_taper"):
             tree["scenario"].pop(key)
         # and the captured update's switch, off, which a resume may change
         assert tree.pop("cudagraphs") is False, name

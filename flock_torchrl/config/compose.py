@@ -31,7 +31,7 @@ from .groups import ExperimentConfig, LoggerConfig, PolicyConfig
 from .learners import ALGO_SCHEMAS, sac_target_entropy
 from .names import config_folder, evaluated_name, run_name, selection_dir
 from .paths import CONF_DIR, shipped_checkpoints_dir
-from .scenario import SCENARIO_FIELDS, ScenarioConfig, check_booleans
+from .scenario import FIELDS_BEFORE, SCENARIO_FIELDS, ScenarioConfig, check_booleans
 
 # The resolvers the YAMLs use, by name.
 RESOLVERS = {
@@ -239,12 +239,14 @@ def scenario_config(scenario: str | Mapping[str, Any] | DictConfig | ScenarioCon
 def saved_scenario(saved: Mapping[str, Any]) -> dict[str, Any]:
     """A scenario a checkpoint or a run folder saved, as this version's fields: fields added
     since (e.g. the drawn obstacles) take the training scenario's values of its reading
-    (conf/scenario/train.yaml), which mean "as it was"."""
+    (conf/scenario/train.yaml), which mean "as it was", or, where today's default changed what a
+    world does (``FIELDS_BEFORE``: the 3-D instinct's taper, the laser's vertical pair), the
+    value that does what it did."""
     missing = SCENARIO_FIELDS - set(saved)
     if not missing:
         return dict(saved)
-    base = compose_world("train", str(saved.get("reading", "paper_fit"))).scenario
-    return {**{k: OmegaConf.to_container(base, resolve=True)[k] for k in missing}, **dict(saved)}
+    base = OmegaConf.to_container(compose_world("train", str(saved.get("reading", "paper_fit"))).scenario, resolve=True)
+    return {**{k: FIELDS_BEFORE.get(k, base[k]) for k in missing}, **dict(saved)}
 
 
 def plain(cfg: Any) -> Any:

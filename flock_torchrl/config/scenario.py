@@ -57,6 +57,8 @@ class ScenarioConfig(Schema):
     rep_range: float = MISSING
     safe_distance: float = MISSING
     instinct_mode: str = MISSING             # paper (Eq. 29) | no_push_in | saturated (beyond the paper)
+    tangential_taper: float = MISSING        # rad, 3-D only: the tangential term fades to 0 within this angle of
+                                             # v_r's line (section 11; 0: the goal's orthogonal part at full length)
     # --- action interface: policy (Eq. 19-20) | velocity (the rule-based controllers)
     action_mode: str = MISSING
     # --- reward (section 4): scan | min_uav_scan (Policy4-G)
@@ -101,6 +103,7 @@ class ScenarioConfig(Schema):
     climb_max: float = MISSING               # rad, gamma_max: |flight-path angle| commanded (0: climb disabled)
     altitude: List[float] = MISSING          # m, [ground, ceiling]: the altitude is clamped into it
     laser_rings: List[float] = MISSING       # rad, elevations of the laser's rings of n_beams beams
+    laser_vertical: bool = MISSING           # a beam straight down and one straight up after the rings
     spawn_altitude: List[float] = MISSING    # m, [min, max] of the swarm centre's altitude at spawn
     spawn_height: float = MISSING            # m, vertical spread of the starts about that altitude
     goal_altitude: List[float] = MISSING     # m, [min, max] of the goal's altitude
@@ -163,19 +166,16 @@ class ScenarioConfig(Schema):
         return self.random_circles - self.drawn_spheres
 
     @property
-    def n_rings(self) -> int:
-        """Laser rings: one in 2-D."""
-        return len(self.laser_rings) if self.dims == 3 else 1
-
-    @property
     def n_laser(self) -> int:
-        """Laser beams in all: ``n_beams`` per ring."""
-        return self.n_beams * self.n_rings
+        """Laser beams in all: ``n_beams`` per ring (and the vertical pair, in 3-D)."""
+        return self.n_beams if self.laser is None else self.laser.count
 
     @property
-    def rings(self) -> tuple[float, ...] | None:
-        """The rings' elevations in 3-D (the sensors' switch to 3-D), ``None`` in 2-D."""
-        return tuple(float(e) for e in self.laser_rings) if self.dims == 3 else None
+    def laser(self) -> "Laser | None":
+        """The 3-D laser's beams (the sensors' switch to 3-D), ``None`` in 2-D."""
+        if self.dims != 3:
+            return None
+        return Laser(self.n_beams, tuple(float(e) for e in self.laser_rings), bool(self.laser_vertical))
 
     def checked_fields(self, prefix: str) -> dict[str, Any]:
         """Every field's range; whether the starts can always be placed is the world's question
@@ -289,6 +289,8 @@ class ScenarioConfig(Schema):
             reject(k("random_heights"), f"drawn obstacles rise from the ground ({ground:g} m): their tops "
                                         f"{heights} must lie above it")
         pair("random_sphere_altitude")
+        if not is_number(self.tangential_taper) or not 0 <= self.tangential_taper < math.pi / 2:
+            reject(k("tangential_taper"), f"must be an angle in [0, pi/2) rad, got {self.tangential_taper!r}")
         rings = list(self.laser_rings)
         if not (1 <= len(rings) <= 36 and all(is_number(e) and abs(e) < math.pi / 2 - 1e-3 for e in rings)):
             reject(k("laser_rings"), f"must be 1 to 36 elevations strictly inside (-pi/2, pi/2) rad, got {rings}")
@@ -340,6 +342,43 @@ def _circle_rect_overlap(c: Sequence[float], r: Sequence[float]) -> bool:
     return math.hypot(dx, dy) < c[2]
 
 
+@dataclass(frozen=True)
+class Laser:
+    """The 3-D laser (docs/specification.md section 11): ``n_beams`` beams on each ring of constant
+    elevation ``rings[r]``, beam ``(r, k)`` at index ``r n_beams + k`` and azimuth ``phi_i + k 360 /
+    n_beams`` deg; with ``vertical``, then a beam straight down (index ``len(rings) n_beams``) and
+    one straight up (the next). Per-beam tables as Python floats, for the sensors' constants."""
+
+    n_beams: int
+    rings: tuple[float, ...]
+    vertical: bool = False
+
+    @property
+    def ring_beams(self) -> int:
+        """Beams on the rings (the vertical pair's indices follow them)."""
+        return self.n_beams * len(self.rings)
+
+    @property
+    def count(self) -> int:
+        """Beams in all."""
+        return self.ring_beams + (2 if self.vertical else 0)
+
+    def elevations(self) -> list[float]:
+        """Every beam's elevation (rad): ring by ring, then ``-pi/2`` and ``pi/2``."""
+        return [e for e in self.rings for _ in range(self.n_beams)] + ([-math.pi / 2, math.pi / 2]
+                                                                         if self.vertical else [])
+
+    def cos_sin(self) -> tuple[list[float], list[float]]:
+        """``cos`` and ``sin`` of every beam's elevation; exactly ``(0, -1)`` and ``(0, 1)`` for the
+        vertical pair, whose rays then have no horizontal part at all."""
+        cos_e = [math.cos(e) for e in self.rings for _ in range(self.n_beams)]
+        sin_e = [math.sin(e) for e in self.rings for _ in range(self.n_beams)]
+        if self.vertical:
+            cos_e += [0.0, 0.0]
+            sin_e += [-1.0, 1.0]
+        return cos_e, sin_e
+
+
 SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
 BOOLEAN_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig) if f.type in ("bool", bool))
 
@@ -355,7 +394,11 @@ def check_booleans(values: Any, prefix: str = "scenario") -> None:
 # checkpoint written before a field was added here flies with the scenario's value of it,
 # which is what it trained with (``n_cam``: 3 for every checkpoint written before the field existed).
 POLICY_SCENARIO_FIELDS = ("fov", "n_cam", "instinct", "tangential", "instinct_mode", "collision_reward_source",
-                          "cohesion_range", "collision_shape", "actor_camera", "action_mode")
+                          "cohesion_range", "collision_shape", "actor_camera", "action_mode", "tangential_taper",
+                          "laser_vertical")
+# Fields whose value before they existed is not today's default (docs/specification.md section 11):
+# a scenario saved before them (a run folder, a checkpoint) gets these, what it was trained with.
+FIELDS_BEFORE = {"tangential_taper": 0.0, "laser_vertical": False}
 READINGS = ("literal", "paper_fit")
 # Half the height (m) of an obstacle "unbounded in height" in 3-D (section 11): a 2-D circle or
 # rectangle is a prism from -FULL_HEIGHT to FULL_HEIGHT, beyond every altitude a config allows.
@@ -379,6 +422,7 @@ COLLISION_SHAPES = ("paper", "ramp")
 ACTOR_CAMERAS = ("paper", "all_round")
 
 
-__all__ = ["ACTOR_CAMERAS", "COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "INSTINCT_MODES", "POLICY_SCENARIO_FIELDS", "READINGS",
+__all__ = ["ACTOR_CAMERAS", "COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "FIELDS_BEFORE", "INSTINCT_MODES", "Laser",
+           "POLICY_SCENARIO_FIELDS", "READINGS",
            "FULL_HEIGHT",
            "SCENARIO_FIELDS", "ScenarioConfig"]

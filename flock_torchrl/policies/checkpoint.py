@@ -16,6 +16,7 @@ evaluations and training curve. Every write goes through :func:`flock_torchrl.io
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import os
@@ -28,7 +29,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from ..config import ScenarioConfig, saved_scenario
+from ..config import POLICY_SCENARIO_FIELDS, ScenarioConfig, saved_scenario
 from ..io import atomic_write
 from ..world.sensors import observation_size
 from .models import ACTION, OBS, actor_of_sizes
@@ -276,6 +277,14 @@ def slim_payload(payload: dict[str, Any], checkpoint: str | os.PathLike, member:
             if key in payload}
 
 
+def policy_fields(meta: dict[str, Any], scenario: ScenarioConfig | None = None) -> dict[str, Any]:
+    """The policy scenario fields (``POLICY_SCENARIO_FIELDS``) a checkpoint's policy flies with: those
+    its meta records, and for a field added since it was written, its saved scenario's value
+    (``scenario``, if already built), which is what it trained with (:func:`saved_scenario`)."""
+    saved = dataclasses.asdict(scenario) if scenario is not None else saved_scenario(meta["scenario"])
+    return {**{k: saved[k] for k in POLICY_SCENARIO_FIELDS}, **dict(meta["policy_scenario"])}
+
+
 class SharedPolicy(TensorDictModuleBase):
     """A trained shared actor, ready for ``env.rollout`` with any number of UAVs.
 
@@ -289,12 +298,12 @@ class SharedPolicy(TensorDictModuleBase):
         device = torch.device("cpu" if device is None else device)
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
-        self.flock_meta = meta
         try:
             scenario = ScenarioConfig(**saved_scenario(meta["scenario"]))
         except (TypeError, ValueError) as exc:
             raise CheckpointError(f"{origin}: meta.scenario is not a scenario ({' '.join(str(exc).split())})"
                                   ) from None
+        self.flock_meta = {**meta, "policy_scenario": policy_fields(meta, scenario)}
         # Sized from what the checkpoint stores (no world is built): the observation of its
         # scenario, the action box of its action mode (the policy's [-1, 1]^2, or velocities;
         # [-1, 1]^3 in a 3-D world, docs/specification.md section 11).
@@ -357,5 +366,5 @@ def load_policy(path: str | os.PathLike, device: str | torch.device | None = Non
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
-           "member_list", "members_of", "policy_of", "policy_payload", "slim_payload",
+           "member_list", "members_of", "policy_fields", "policy_of", "policy_payload", "slim_payload",
            "resolve_path", "save_checkpoint"]

@@ -114,7 +114,7 @@ def checkpoint_handle(path: str | os.PathLike, device: str = "cpu", member: int 
     module = SharedPolicy(one["actor"], meta, device=device, origin=where)
     return PolicyHandle(
         id=meta["policy_id"], name=meta["policy"], kind="learned", reading=meta["reading"],
-        scenario=dict(meta["policy_scenario"]), extras=(), origin=origin,
+        scenario=dict(module.flock_meta["policy_scenario"]), extras=(), origin=origin,
         build_for=lambda env: same_dims(module, env, where), seed=meta.get("seed"), member=member)
 
 

@@ -30,21 +30,23 @@ def evaluated_handles(cfg: EvaluateConfig) -> list[PolicyHandle]:
 
 
 def checkpoint_world(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
-    """The evaluate app's composed ``cfg`` in the world of the policy its ``checkpoint`` holds,
-    when the command line (``overrides``) chose no ``policy=``: its ``policy`` node and the
-    scenario fields the policy sets, but those the command line sets itself (a conflict is then
-    :func:`~.rollout.policy_env`'s one-line error). With ``policy=`` given, ``cfg`` as it is
+    """The evaluate app's composed ``cfg`` in the world of the policy its ``checkpoint`` holds: its
+    ``policy`` node (when the command line, ``overrides``, chose no ``policy=``) and the scenario
+    fields it flies with, but those the command line sets itself (a conflict is then
+    :func:`~.rollout.policy_env`'s one-line error). With another ``policy=`` given, ``cfg`` as it is
     (:func:`evaluated_handles` refuses a policy other than the checkpoint's)."""
     given = {str(o).lstrip("+~").split("=", 1)[0] for o in overrides}
-    if not cfg.get("checkpoint") or cfg.get("contender") is not None or "policy" in given:
+    if not cfg.get("checkpoint") or cfg.get("contender") is not None:
         return cfg
     handle = resolve(str(cfg.checkpoint), member=cfg.get("member"))[0]  # a population's members share their policy
-    if handle.id == cfg.policy.id:
+    if handle.id != cfg.policy.id and "policy" in given:
         return cfg
-    policy, _ = policy_config_of(handle.id, str(cfg.scenario.reading))
     out = copy.deepcopy(cfg)
     with open_dict(out):
-        out.policy = OmegaConf.structured(policy)
+        if handle.id != cfg.policy.id:
+            out.policy = OmegaConf.structured(policy_config_of(handle.id, str(cfg.scenario.reading))[0])
+        # The fields it was trained with, also where its policy's config now sets others (a field
+        # added since it was written: docs/specification.md section 11's taper and vertical beams).
         for key, value in handle.scenario.items():
             if f"scenario.{key}" not in given:
                 out.scenario[key] = value

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..config.scenario import Laser
 from .geometry import (Obstacles, cast_rays_3d, cast_rays_along, cast_rays_worlds_last, circular_mean, constant,
                        length, relative_angle, stored, wrap)
 
@@ -94,15 +95,21 @@ def beam_directions(heading: torch.Tensor, n_beams: int) -> torch.Tensor:
     return torch.stack((cos_h * cos_o - sin_h * sin_o, sin_h * cos_o + cos_h * sin_o), 0).movedim(0, -1)
 
 
-def ring_tables(rings, n_beams: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``cos`` and ``sin`` of every beam's elevation, ring by ring, ``[len(rings) n_beams]`` each."""
-    cos_e = [math.cos(e) for e in rings for _ in range(n_beams)]
-    sin_e = [math.sin(e) for e in rings for _ in range(n_beams)]
-    return constant(cos_e, like), constant(sin_e, like)
+def ring_tables(laser: Laser, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``cos`` and ``sin`` of every beam's elevation (:meth:`Laser.cos_sin`), ``[laser.count]`` each."""
+    return tuple(constant(values, like) for values in laser.cos_sin())
+
+
+def beam_azimuths(laser: Laser, index: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """Each beam's azimuth relative to the heading, ``k * 360 / n_beams`` deg, at beam indices
+    ``index`` (the vertical pair's: 0, where their horizontal part, of length 0, would point)."""
+    offsets = beam_offsets(laser.n_beams, like.device, like.dtype)[index % laser.n_beams]
+    return torch.where(index < laser.ring_beams, offsets, 0.0) if laser.vertical else offsets
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
-               max_range: float, static_shapes: bool = False, rings=None) -> tuple[torch.Tensor, torch.Tensor]:
+               max_range: float, static_shapes: bool = False, laser: Laser | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor]:
     """All laser beams of every UAV.
 
     Args:
@@ -110,14 +117,14 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         static_shapes: cast every beam at every obstacle, the worlds innermost in memory (in 2-D
             :func:`~.geometry.cast_rays_worlds_last`; the results are ``[B, N, K]`` views of
             ``[K, N, B]`` tensors, which :func:`shortest_beams` reads with ``worlds_last``).
-        rings: 3-D only, the rings' elevations (rad, section 11): ``n_beams`` beams on each.
+        laser: 3-D only, the laser's rings and vertical pair (section 11): ``n_beams`` beams on each ring.
 
     Returns:
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
-        In 3-D ``[B, N, len(rings) n_beams]``, beam ``(r, k)`` at index ``r n_beams + k``.
+        In 3-D ``[B, N, laser.count]``, beam ``(r, k)`` at index ``r n_beams + k``, then the vertical pair.
     """
-    if rings is None and static_shapes:
+    if laser is None and static_shapes:
         h = worlds_last(heading)                                      # [N, B]
         cos_o, sin_o = (constant(v, h)[:, None, None] for v in beam_unit_table(n_beams))  # [K, 1, 1]
         cos_h, sin_h = torch.cos(h), torch.sin(h)
@@ -126,10 +133,13 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         distance, index = cast_rays_worlds_last(worlds_last(position[..., 0]), worlds_last(position[..., 1]),
                                                 dx, dy, obstacles, max_range)
         return distance.permute(2, 1, 0), index.permute(2, 1, 0)
-    if rings is None:
+    if laser is None:
         return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range)
-    horizontal = beam_directions(heading, n_beams).repeat(1, 1, len(rings), 1)
-    cos_e, sin_e = ring_tables(rings, n_beams, position)
+    level = beam_directions(heading, n_beams)
+    horizontal = level.repeat(1, 1, len(laser.rings), 1)
+    if laser.vertical:  # the pair's horizontal part is multiplied by cos_e = 0: any unit vector will do
+        horizontal = torch.cat((horizontal, level[..., :1, :].expand(*level.shape[:-2], 2, 2)), -2)
+    cos_e, sin_e = ring_tables(laser, position)
     return cast_rays_3d(position, horizontal, cos_e, sin_e, obstacles, max_range, static_shapes)
 
 
@@ -197,24 +207,25 @@ def shortest_beams(beams: torch.Tensor, n: int, worlds_last: bool = False) -> tu
 
 
 def scan_observation(beams: torch.Tensor, n: int, max_range: float,
-                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None, rings=None) -> torch.Tensor:
+                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None, laser: Laser | None = None
+                     ) -> torch.Tensor:
     """``o_scan`` (Eq. 16): ``[d_k / d_max^scan, alpha_k / pi]`` for the ``n`` shortest beams.
 
     Args:
         shortest: :func:`shortest_beams` of ``beams`` if already known (at least ``n`` of them).
 
     Returns:
-        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``; with ``rings`` (3-D,
-        section 11) ``[B, N, 3 n]``, ``(d_k, alpha_k, e_k / pi)`` with ``e_k`` the beam's ring elevation.
+        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``; with ``laser`` (3-D,
+        section 11) ``[B, N, 3 n]``, ``(d_k, alpha_k, e_k / pi)`` with ``e_k`` the beam's elevation
+        (the vertical pair's: ``-+pi/2``, azimuth 0).
     """
     dist, idx = shortest if shortest is not None else shortest_beams(beams, n)
     dist, idx = dist[..., :n], idx[..., :n]
-    if rings is None:
+    if laser is None:
         alpha = wrap(beam_offsets(beams.shape[-1], beams.device, beams.dtype))[idx]
         return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
-    n_beams = beams.shape[-1] // len(rings)
-    alpha = wrap(beam_offsets(n_beams, beams.device, beams.dtype))[idx % n_beams]
-    elevation = constant(rings, beams)[idx // n_beams]
+    alpha = wrap(beam_azimuths(laser, idx, beams))
+    elevation = constant(laser.elevations(), beams)[idx]
     return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi, elevation / math.pi),
                        -1).flatten(-2)
 
@@ -625,22 +636,21 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
 
 
 def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
-                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None, rings=None
+                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None, laser: Laser | None = None
                        ) -> tuple[torch.Tensor, torch.Tensor]:
     """Shortest beam's length ``d_scan1`` ``[B, N]`` and its return point minus the UAV's position ``[B, N, 2]``.
 
     Args:
         shortest: :func:`shortest_beams` of ``beams`` if already known.
-        rings: 3-D (section 11): the laser's ring elevations; the offset is then ``[B, N, 3]``.
+        laser: 3-D (section 11): the laser's beams; the offset is then ``[B, N, 3]``.
     """
     d, idx = shortest if shortest is not None else shortest_beams(beams, 1)
     d, idx = d[..., :1], idx[..., :1]
-    if rings is None:
+    if laser is None:
         angle = heading + beam_offsets(beams.shape[-1], beams.device, beams.dtype)[idx[..., 0]]
         return d[..., 0], d * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
-    n_beams = beams.shape[-1] // len(rings)
-    angle = heading + beam_offsets(n_beams, beams.device, beams.dtype)[idx[..., 0] % n_beams]
-    cos_e, sin_e = (t[idx[..., 0]] for t in ring_tables(rings, n_beams, beams))
+    angle = heading + beam_azimuths(laser, idx[..., 0], beams)
+    cos_e, sin_e = (t[idx[..., 0]] for t in ring_tables(laser, beams))
     return d[..., 0], d * torch.stack((cos_e * torch.cos(angle), cos_e * torch.sin(angle), sin_e), -1)
 
 
@@ -648,7 +658,7 @@ __all__ = [
     "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "SIZES_3D", "observation_size", "state_size",
     "elevation_of", "measure_pairs_3d", "off_axis", "piece_sizes", "planar_entries", "ring_tables",
     "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
-    "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
+    "beam_azimuths", "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "pick", "shortest_beams", "smallest", "worlds_last",
     "swarm_centre_state", "visibility",
 ]

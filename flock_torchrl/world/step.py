@@ -103,10 +103,10 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     neighbours reduce over the outermost dimension; the keys returned have the same shapes.
     """
     position, heading, goal = state["position"], state["heading"], state["goal"]
-    climb, rings = (state["climb"], cfg.rings) if cfg.dims == 3 else (None, None)  # 3-D: section 11
+    climb, laser = (state["climb"], cfg.laser) if cfg.dims == 3 else (None, None)  # 3-D: section 11
     obstacles = world_obstacles(state, static, cfg)
     beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range, static_shapes,
-                                      rings)
+                                      laser)
     # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
     true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov,
                                                       static_shapes, climb, worlds_last=static_shapes)
@@ -133,16 +133,16 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     # the same (noisy) measurements either way; the instinct below keeps the field of view.
     actor_view = neighbours if cfg.actor_camera == "paper" else neighbours.with_visibility(all_round.visible)
     observation = torch.cat(
-        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest, rings),
+        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest, laser),
          camera_observation(actor_view, cfg.n_cam, cfg.camera_range)), -1)
     critic_state = torch.cat(
-        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest, rings),
+        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest, laser),
          camera_observation(all_round, cfg.n_cam, cfg.camera_range),
          swarm_centre_state(position, heading, cfg.camera_range, climb)), -1)
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
         safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest,
-        mode=cfg.instinct_mode, rings=rings)
+        mode=cfg.instinct_mode, laser=laser, taper=cfg.tangential_taper)
     out = {
         "observation": observation,
         "state": critic_state,

@@ -21,7 +21,9 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from ...world.sensors import add_sensor_noise, beam_offsets, near_neighbours, observe_neighbours, ring_tables
+from ...config.scenario import Laser
+from ...world.sensors import (add_sensor_noise, beam_azimuths, beam_offsets, near_neighbours, observe_neighbours,
+                              ring_tables)
 
 
 @dataclass
@@ -94,7 +96,7 @@ class ObstacleView:
 
 
 def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch.Tensor,
-                 n_obstacles: int, rings=None) -> ObstacleView:
+                 n_obstacles: int, laser: Laser | None = None) -> ObstacleView:
     """Nearest laser hit per obstacle (docs/baselines.md, "What a baseline UAV senses").
 
     Beam ``k`` points at ``heading + k * 2 pi / K``. For each obstacle the shortest beam that hit
@@ -104,8 +106,8 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
     Args:
         scan: sensed beam lengths ``[B, N, K]``; scan_obstacle: obstacle index per beam
             ``[B, N, K]`` (-1: none); heading: ``[B, N]``; n_obstacles: ``M``.
-        rings: 3-D (section 11): the laser's ring elevations; beam ``r n_beams + k`` lies on ring
-            ``r``, and offsets and normals are then ``[B, N, M, 3]``.
+        laser: 3-D (section 11): the laser's beams (:class:`~flock_torchrl.config.scenario.Laser`);
+            offsets and normals are then ``[B, N, M, 3]``.
 
     Returns:
         An :class:`ObstacleView` over ``M`` obstacles (``M = 0`` gives empty tensors).
@@ -119,13 +121,12 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
     else:
         distance, beam = lengths.min(-2)                                    # [B, N, M]
     seen = torch.isfinite(distance)
-    if rings is None:
+    if laser is None:
         angle = heading[..., None] + beam_offsets(scan.shape[-1], scan.device, scan.dtype)[beam]
         direction = torch.stack((torch.cos(angle), torch.sin(angle)), -1)   # UAV -> hit, [B, N, M, 2]
     else:
-        n_beams = scan.shape[-1] // len(rings)
-        angle = heading[..., None] + beam_offsets(n_beams, scan.device, scan.dtype)[beam % n_beams]
-        cos_e, sin_e = (t[beam] for t in ring_tables(rings, n_beams, scan))
+        angle = heading[..., None] + beam_azimuths(laser, beam, scan)
+        cos_e, sin_e = (t[beam] for t in ring_tables(laser, scan))
         direction = torch.stack((cos_e * torch.cos(angle), cos_e * torch.sin(angle), sin_e), -1)
     mask = seen[..., None]
     offset = torch.where(mask, distance.clamp_max(1e9)[..., None] * direction, torch.zeros_like(direction))
@@ -206,7 +207,7 @@ class RuleBasedPolicy(TensorDictModuleBase):
             neighbours=neighbour_view(position, velocity, heading, cfg.camera_range, cfg.half_fov, noise, generator,
                                       climb),
             obstacles=nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
-                                   self.n_obstacles, cfg.rings if three_d else None),
+                                   self.n_obstacles, cfg.laser),
         )
 
     def command(self, percept: Percept) -> torch.Tensor:
