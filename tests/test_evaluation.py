@@ -165,3 +165,26 @@ def test_every_policy_sees_the_same_starts():
         layouts.append((td["agents", "position"], td["agents", "heading"], td["goal"], td["obstacles", "position"]))
     for other in layouts[1:]:
         assert all(torch.equal(a, b) for a, b in zip(layouts[0], other))
+
+
+def test_the_wilson_interval_is_scipys_and_the_textbook_formula():
+    """run/results.py takes the interval from scipy (binomtest(k, n).proportion_ci, method
+    "wilson"), bit for bit; it is the textbook formula (centre (p + z^2/2n) / (1 + z^2/n), half
+    z / (1 + z^2/n) sqrt(p(1-p)/n + z^2/4n^2), clipped to [0, 1]) to round-off, and n = 0 has no
+    interval (NaN, as the empty cells of a table)."""
+    from scipy.stats import binomtest
+
+    z = 1.959963984540054
+    for n in (*range(1, 41), 100, 499, 500, 5000):
+        for k in sorted({0, 1, n // 3, n // 2, n - 1, n}):
+            low, high = wilson_interval(k, n)
+            ci = binomtest(k, n).proportion_ci(method="wilson")
+            assert (low, high) == (ci.low, ci.high), (k, n)
+            assert type(low) is float and type(high) is float
+            p, denom = k / n, 1 + z * z / n
+            centre, half = (p + z * z / (2 * n)) / denom, z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+            assert (low, high) == pytest.approx((max(0.0, centre - half), min(1.0, centre + half)), abs=1e-15)
+    assert wilson_interval(0, 4)[0] == 0.0 and wilson_interval(4, 4)[1] == 1.0
+    assert all(math.isnan(x) for x in wilson_interval(0, 0))
+    empty = EvaluationResult("P", "train", "literal", 0, {k: torch.zeros(0) for k in METRIC_KEYS}).rate("success")
+    assert math.isnan(empty.rate) and math.isnan(empty.low) and math.isnan(empty.high) and empty.n == 0

@@ -20,7 +20,7 @@ import torch
 from ..io import write_csv, write_text
 from ..world.metrics import CELL_METRICS, METRIC_KEYS, RATE_METRICS
 
-WILSON_Z = 1.959963984540054  # two-sided 95 %
+WILSON_CONFIDENCE = 0.95  # two-sided
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -44,18 +44,15 @@ class Rate:
     n: int
 
 
-def wilson_interval(k: int, n: int, z: float = WILSON_Z) -> tuple[float, float]:
-    """Wilson score interval of ``k`` successes in ``n`` trials (``(nan, nan)`` for ``n = 0``).
+def wilson_interval(k: int, n: int, confidence: float = WILSON_CONFIDENCE) -> tuple[float, float]:
+    """Wilson score interval of ``k`` successes in ``n`` trials (``(nan, nan)`` for ``n = 0``):
+    scipy's ``binomtest(k, n).proportion_ci(method="wilson")``, two-sided at ``confidence``."""
+    from scipy.stats import binomtest  # scipy.stats takes a second to import: only where an interval is asked for
 
-    ``centre = (p + z^2/2n) / (1 + z^2/n)``, ``half = z / (1 + z^2/n) sqrt(p(1-p)/n + z^2/4n^2)``.
-    """
     if n <= 0:
         return math.nan, math.nan
-    p = k / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z / denom * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return max(0.0, centre - half), min(1.0, centre + half)
+    interval = binomtest(int(k), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(interval.low), float(interval.high)
 
 
 def mean_std(values: torch.Tensor) -> Cell:
@@ -184,4 +181,4 @@ def write_result(result: EvaluationResult, out_dir: str | os.PathLike, config: M
 
 
 
-__all__ = ["Cell", "EvaluationResult", "Rate", "WILSON_Z", "mean_std", "wilson_interval", "write_result"]
+__all__ = ["Cell", "EvaluationResult", "Rate", "WILSON_CONFIDENCE", "mean_std", "wilson_interval", "write_result"]
