@@ -41,8 +41,9 @@ from ..capture import captured
 from ..config import DDPGConfig, PPOConfig, SACConfig
 from .models import ACTION, LOG_PROB, SamplingActor, make_actor, make_qvalue, make_value
 
-# PPO normalises advantages over all UAVs of the batch on purpose (one shared policy).
-warnings.filterwarnings("ignore", message="You requested advantage normalization")
+# PPO normalises advantages over all UAVs of the batch on purpose (one shared policy): TorchRL's
+# warning about it is held back around our own loss calls only (PPOLearner.update).
+ADVANTAGE_NORMALIZATION = "You requested advantage normalization"
 
 AGENT_KEYS = dict(reward=("agents", "reward"), done=("agents", "done"), terminated=("agents", "terminated"))
 
@@ -314,7 +315,9 @@ class PPOLearner:
         for _ in range(self.cfg.epochs):
             order = torch.randperm(n, device=flat.device)
             for start in range(0, n - size + 1, size):  # minibatches of one batch: PPO's epochs
-                losses = self.loss_fn(flat[order[start:start + size]])
+                with warnings.catch_warnings():
+                    warnings.filterwarnings("ignore", message=ADVANTAGE_NORMALIZATION)
+                    losses = self.loss_fn(flat[order[start:start + size]])
                 terms = {"loss_objective": losses["loss_objective"], "loss_critic": losses["loss_critic"]}
                 check_finite(terms)
                 total = terms["loss_objective"] + terms["loss_critic"] + losses.get("loss_entropy", 0.0)

@@ -21,7 +21,7 @@ from torchrl.envs.utils import ExplorationType
 from ..config import TrainConfig
 from ..io import write_failure
 from ..policies.checkpoint import CheckpointError, save_checkpoint
-from ..capture import CUDAGRAPH_WARMUP
+from .. import capture
 from ..world.env import FlockingEnv
 from .batches import AgentwiseDone
 from .signals import ignore_stop_signals, start_workers
@@ -128,9 +128,9 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
 
 
 def policy_capture(cfg: TrainConfig) -> dict[str, int] | None:
-    """A collector's ``cudagraph_policy``: with ``cudagraphs``, the policy's forward captured as
-    the update is (tensordict's ``CudaGraphModule``; a pass-through without CUDA)."""
-    return {"warmup": CUDAGRAPH_WARMUP} if cfg.cudagraphs else None
+    """A collector's ``cudagraph_policy``: with ``cudagraphs`` on a GPU, the policy's forward
+    captured as the update is (:func:`flock_torchrl.capture.policy_capture`; none without CUDA)."""
+    return capture.policy_capture(cfg.device, cfg.cudagraphs)
 
 
 class UnreadCursorStorage(LazyTensorStorage):

@@ -163,7 +163,8 @@ def logger_hparams(resolved: dict[str, Any]) -> dict[str, Any]:
 
 def make_logger(backend: str, project: str, mode: str, run_dir: Path, name: str):
     """TorchRL's logger for ``backend`` (``csv``, ``wandb`` offline by default, ``tensorboard``),
-    writing into the run folder; ``None`` for ``none``."""
+    writing into the run folder; ``None`` for ``none``. wandb runs in ``mode`` (``logger.mode``),
+    given to ``wandb.init``: a ``WANDB_MODE`` in the environment neither overrides it nor is set."""
     if backend == "none":
         return None
     if backend == "csv":
@@ -171,10 +172,11 @@ def make_logger(backend: str, project: str, mode: str, run_dir: Path, name: str)
 
         return CSVLogger(exp_name="logs", log_dir=str(run_dir))
     if backend == "wandb":
-        os.environ.setdefault("WANDB_MODE", mode)
         from torchrl.record.loggers import WandbLogger
 
-        return WandbLogger(exp_name=name, offline=mode == "offline", save_dir=str(run_dir), project=project)
+        # The mode goes to wandb.init itself, so logger.mode is what runs whatever WANDB_MODE says;
+        # TorchRL's offline=True would write WANDB_MODE into the process's environment instead.
+        return WandbLogger(exp_name=name, offline=False, save_dir=str(run_dir), project=project, mode=mode)
     if backend == "tensorboard":
         from torchrl.record.loggers import TensorboardLogger
 
