@@ -246,6 +246,8 @@ def test_every_train_composition_keeps_the_values_main_composed(every):
         tree["resumable"].remove("cudagraphs")
         # and the reserve of fresh worlds, off
         assert tree.pop("reset_pool") == 0, name
+        # and the kinds of training world, none but the scenario's
+        assert tree["experiment"].pop("train_mix") == [], name
         assert set(tree) == set(entry), name
         for key, digest in entry.items():
             assert tree[key] == nodes[digest], f"{name}: {key}"

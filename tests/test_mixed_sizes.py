@@ -2,6 +2,8 @@
 replay buffer give the losses the same terms; a mixed run trains, checkpoints, resumes exactly
 and its policy flies any N; bad recipes are refused before anything runs."""
 
+import math
+
 import pytest
 import torch
 
@@ -90,5 +92,63 @@ def test_bad_mixed_recipes_are_refused_by_name(overrides, words):
     from flock_torchrl.config import TrainConfig
 
     with pytest.raises(ConfigError, match="swarm_sizes") as info:
+        TrainConfig.from_config(compose("train", ["experiment=tiny", *overrides]))
+    assert words in str(info.value)
+
+
+# ---------------------------------------------------------------------------- kinds of training world
+WALL = "{circles:[],rectangles:[[40.0,40.0,2000.0,4.0,4.0,20.0]],chi_range:[0.7853981633974483,2.356194490192345]}"
+
+
+def test_train_mix_splits_the_worlds_between_every_size_and_kind():
+    """experiment.train_mix: an env per (swarm size, kind), sizes outermost; each kind's fields over
+    the training scenario, the swarm transitions kept whole where the sizes are not mixed."""
+    from flock_torchrl.run.parts import make_envs
+
+    from flock_torchrl.config import TrainConfig
+
+    cfg = TrainConfig.from_config(make_train_config("policy3_g", "tiny", [
+        "scenario=train3d", f"experiment.train_mix=[{{}},{WALL}]", "experiment.swarm_sizes=[3,5]"]))
+    kinds = cfg.train_scenarios
+    assert [(s.n_uavs, len(s.circles), s.rectangles[0][2]) for s in kinds] == [
+        (3, 1, 6.0), (3, 0, 2000.0), (5, 1, 6.0), (5, 0, 2000.0)]
+    assert kinds[1].chi_range == pytest.approx([math.pi / 4, 3 * math.pi / 4]) and kinds[0].chi_range[0] == -math.pi
+    envs, _ = make_envs(cfg, torch.device("cpu"))
+    assert [e.num_envs for e in envs] == [1, 1, 1, 1]  # tiny's 4 worlds, one per size and kind
+    # The wall's kind alone, without sizes: two envs of two worlds, and a run of it trains on both.
+    cfg = TrainConfig.from_config(make_train_config("policy3_g", "tiny", [
+        "scenario=train3d", f"experiment.train_mix=[{{}},{WALL}]"]))
+    envs, _ = make_envs(cfg, torch.device("cpu"))
+    assert [e.num_envs for e in envs] == [2, 2] and envs[1].cfg.rectangles[0][2] == 2000.0
+
+
+@pytest.mark.slow
+def test_a_run_of_two_kinds_of_world_trains_and_resumes_exactly(tmp_path):
+    def kinds(*overrides):
+        return make_train_config("policy3_g", "tiny", ["scenario=train3d", "scenario.max_steps=40", "progress=false",
+                                                       f"experiment.train_mix=[{{}},{WALL}]",
+                                                       "experiment.eval_every_frames=0", *overrides])
+
+    whole = train(kinds("experiment.max_frames=192"), tmp_path / "whole")
+    train(kinds("experiment.max_frames=96"), tmp_path / "split")
+    resumed = train(kinds("experiment.max_frames=192", "resume=true"), tmp_path / "split")
+    a, b = load_checkpoint(whole.checkpoint), load_checkpoint(resumed.checkpoint)
+    assert len(a["env_state"]) == 2 and a["counters"]["updates"] > 0
+    for key, value in a["actor"].items():
+        assert torch.equal(value, b["actor"][key]), key
+
+
+@pytest.mark.parametrize("overrides, words", [
+    (["experiment.train_mix=[{},{nothing:1}]"], "experiment.train_mix[1]: unknown scenario field"),
+    (["experiment.train_mix=[{},{n_uavs:9}]"], "experiment.swarm_sizes"),
+    (["experiment.train_mix=[{},{},{}]"], "must divide num_envs=4"),
+    (["experiment.train_mix=[{},{}]", "experiment.workers=2"], "set workers=1"),
+    (["experiment.train_mix=[{},{}]", "policy=policyp_g"], "off-policy"),
+    (["experiment.train_mix=[{},{rectangles:[[40.0,40.0,2000.0,4.0,4.0,20.0]]}]"], "scenario.rectangles"),
+])
+def test_bad_kinds_of_training_world_are_refused_by_name(overrides, words):
+    from flock_torchrl.config import TrainConfig
+
+    with pytest.raises(ConfigError, match="train_mix") as info:
         TrainConfig.from_config(compose("train", ["experiment=tiny", *overrides]))
     assert words in str(info.value)

@@ -119,11 +119,14 @@ class TrainConfig(RunOptions, WorldApp):
             reject("algo", f"policy {policy.id} selects no learner")
         algo = algo_config(self.algo)
         experiment = self.experiment.check()
-        if experiment.swarm_sizes and algo.name not in ("sac", "ddpg"):
-            reject("experiment.swarm_sizes", f"needs an off-policy learner (sac, ddpg): {policy.id} trains "
-                                             f"with {algo.name}")
+        for mixed in ("swarm_sizes", "train_mix"):
+            if getattr(experiment, mixed) and algo.name not in ("sac", "ddpg"):
+                reject(f"experiment.{mixed}", f"needs an off-policy learner (sac, ddpg): {policy.id} trains "
+                                              f"with {algo.name}")
         fields.update(policy=policy, algo=algo, experiment=experiment, logger=self.logger.check())
         training_scenario(fields["scenario"], experiment)  # the training env's scenario is checked too
+        for i, kind in enumerate(experiment.train_mix):  # and each kind of training world
+            kind_of(training_scenario(fields["scenario"], experiment), kind, f"experiment.train_mix[{i}]")
         choice("resume", str(self.resume).lower(), RESUME_MODES)
         choice("compile", str(self.compile).lower(), COMPILE_MODES)
         choice("objective", self.objective, OBJECTIVES)
@@ -175,9 +178,14 @@ class TrainConfig(RunOptions, WorldApp):
 
     @property
     def train_scenarios(self) -> list[ScenarioConfig]:
-        """The training envs' scenarios: one per ``experiment.swarm_sizes`` entry (or one)."""
-        base = self.train_scenario
-        return [dataclasses.replace(base, n_uavs=n) for n in self.experiment.swarm_sizes] or [base]
+        """The training envs' scenarios: one per ``experiment.swarm_sizes`` entry (or one) and kind
+        of world (``experiment.train_mix``, or the training scenario alone), sizes outermost."""
+        base, exp = self.train_scenario, self.experiment
+        sizes = [dataclasses.replace(base, n_uavs=n) for n in exp.swarm_sizes] or [base]
+        if not exp.train_mix:
+            return sizes
+        return [kind_of(size, kind, f"experiment.train_mix[{i}]") for size in sizes
+                for i, kind in enumerate(exp.train_mix)]
 
     @property
     def resume_mode(self) -> str:
@@ -193,6 +201,14 @@ def training_scenario(scenario: ScenarioConfig, experiment: ExperimentConfig) ->
         return dataclasses.replace(scenario, **dict(experiment.train_env)).check()
     except ConfigError as exc:
         raise ConfigError(f"experiment.train_env ({exc.key})", exc.message) from exc
+
+
+def kind_of(scenario: ScenarioConfig, fields: Any, key: str) -> ScenarioConfig:
+    """``scenario`` with one kind of training world's scenario ``fields`` applied, checked."""
+    try:
+        return dataclasses.replace(scenario, **dict(fields)).check()
+    except ConfigError as exc:
+        raise ConfigError(f"{key} ({exc.key})", exc.message) from exc
 
 
 def check_contender(key: str, spec: Any) -> None:

@@ -4,6 +4,7 @@ how long and how fast to train) and a logger (``conf/logger``)."""
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Dict, List, Optional
 
@@ -64,6 +65,10 @@ class ExperimentConfig(Schema):
     # a decision beyond the paper): the training worlds are split evenly between the sizes and
     # the replay buffer holds single UAV transitions. Empty: the scenario's n_uavs only.
     swarm_sizes: List[int] = field(default_factory=list)
+    # Several kinds of training world at once (beyond the paper): each entry the scenario fields of one
+    # kind over train_env (e.g. wall3d's wall among train3d's worlds); the worlds are split evenly
+    # between every swarm size and every kind. Empty: the training scenario alone.
+    train_mix: List[Dict[str, Any]] = field(default_factory=list)
 
     def checked_fields(self, p: str) -> dict[str, Any]:
         folder_name(dotted(p, "name"), self.name)
@@ -94,6 +99,21 @@ class ExperimentConfig(Schema):
                 reject(key, "trains in one process: set workers=1")
             if "n_uavs" in self.train_env:
                 reject(key, "and train_env.n_uavs both set the training swarm size; keep one")
+        if self.train_mix:
+            key = dotted(p, "train_mix")
+            for i, kind in enumerate(self.train_mix):
+                if not isinstance(kind, Mapping):
+                    reject(f"{key}[{i}]", f"must be a mapping of scenario fields, got {kind!r}")
+                unknown = sorted(set(kind) - SCENARIO_FIELDS)
+                if unknown:
+                    reject(f"{key}[{i}]", f"unknown scenario field(s) {unknown}")
+                if "n_uavs" in kind:
+                    reject(f"{key}[{i}]", "sets n_uavs: the swarm sizes are experiment.swarm_sizes")
+            envs = len(self.swarm_sizes or [0]) * len(self.train_mix)
+            if self.num_envs % envs:
+                reject(key, f"{envs} kinds of world (swarm sizes x kinds) must divide num_envs={self.num_envs}")
+            if self.workers > 1:
+                reject(key, "trains in one process: set workers=1")
         return {}
 
 

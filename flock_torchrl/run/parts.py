@@ -88,11 +88,11 @@ def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, p
 
 
 def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:
-    """The main process's training envs (one per swarm size when sizes are mixed, the worlds
-    split evenly, seeds ``1000 * seed + i``), and the factory of a worker's env (by seed)."""
+    """The main process's training envs (one per swarm size and kind of world when they are
+    mixed, the worlds split evenly, seeds ``1000 * seed + i``), and the factory of a worker's env (by seed)."""
     exp = cfg.experiment
     factory = functools.partial(make_env, cfg, exp.num_envs // exp.workers, device, parent=os.getpid())
-    if not exp.swarm_sizes:
+    if not (exp.swarm_sizes or exp.train_mix):
         return [factory(cfg.seed * 1000)], factory
     share = exp.num_envs // len(cfg.train_scenarios)
     return [make_env(cfg, share, device, cfg.seed * 1000 + i, os.getpid(), scenario)

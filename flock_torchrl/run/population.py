@@ -73,8 +73,9 @@ class PopulationTraining(Training):
         device = torch.device(cfg.device)
         # Mixed sizes: one PopulationEnv per size, the worlds split evenly; member k's worlds of
         # size i draw from a generator seeded as its solo run's (1000 seed_k + i).
-        self.mixed = bool(exp.swarm_sizes)
-        scenarios = cfg.train_scenarios if self.mixed else [cfg.train_scenario]
+        self.mixed = bool(exp.swarm_sizes or exp.train_mix)
+        self.per_uav = bool(exp.swarm_sizes)
+        scenarios = cfg.train_scenarios
         self.envs = [PopulationEnv(scenario, self.k, exp.num_envs // len(scenarios), [s * 1000 + i for s in self.seeds],
                                    device=device, compile_step=cfg.compile_step, check_actions=False,
                                    reset_pool=cfg.reset_pool, capture_step=cfg.cudagraphs)
@@ -82,7 +83,7 @@ class PopulationTraining(Training):
         self.env = env = self.envs[0]
         self.learner = learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, self.seeds,
                                                    cudagraphs=cfg.cudagraphs)
-        self.buffer = replay_buffer(cfg, 1 if self.mixed else cfg.scenario.n_uavs, device,
+        self.buffer = replay_buffer(cfg, 1 if self.per_uav else cfg.scenario.n_uavs, device,
                                     sampler=MemberSampler(self.k))
         if payload is not None:
             learner.load_state_dict(payload["learner"])
@@ -140,7 +141,7 @@ class PopulationTraining(Training):
     def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
         """Population rows ``[R, K]``: member k's transitions in column k (swarm transitions, or
         single-UAV ones when the sizes are mixed)."""
-        if self.mixed:
+        if self.per_uav:
             return per_uav(batch.reshape(self.k, -1), lead=1).transpose(0, 1).contiguous()
         rows = batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1)
         return rows.transpose(0, 1).contiguous()

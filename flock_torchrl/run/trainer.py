@@ -58,13 +58,14 @@ class Training:
         start_resource_tracker()  # before the replay buffer's shared counter or any worker needs it
         torch.manual_seed(cfg.seed)
         device = torch.device(cfg.device)
-        self.mixed = bool(exp.swarm_sizes)
+        self.mixed = bool(exp.swarm_sizes or exp.train_mix)  # an env per swarm size and kind of world
+        self.per_uav = bool(exp.swarm_sizes)                  # the replay buffer holds single UAVs' transitions
         self.envs, factory = make_envs(cfg, device)
         self.env = self.envs[0]
         self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss,
                                              cudagraphs=cfg.cudagraphs)
         off_policy = self.learner.off_policy
-        self.buffer = replay_buffer(cfg, 1 if self.mixed else cfg.scenario.n_uavs, device) if off_policy else None
+        self.buffer = replay_buffer(cfg, 1 if self.per_uav else cfg.scenario.n_uavs, device) if off_policy else None
         if payload is not None:
             self.learner.load_state_dict(payload["learner"])
             restore_buffer(self.buffer, payload, self.run_dir)
@@ -179,7 +180,7 @@ class Training:
     def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
         """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones
         when the sizes are mixed."""
-        return per_uav(batch) if self.mixed else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+        return per_uav(batch) if self.per_uav else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
 
     def _update_bucket(self) -> str:
         """Where an update's time goes: a compiled learner's first one in this process compiles."""
