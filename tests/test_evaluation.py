@@ -11,6 +11,7 @@ import torch
 from tensordict import TensorDict
 
 from flock_torchrl import CheckpointError, ConfigError, FlockingEnv
+from flock_torchrl.config import EvaluateConfig
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from flock_torchrl.policies.registry import policy_config_of, policy_id
 from flock_torchrl.config import EVAL_SEED
@@ -188,3 +189,125 @@ def test_the_wilson_interval_is_scipys_and_the_textbook_formula():
     assert all(math.isnan(x) for x in wilson_interval(0, 0))
     empty = EvaluationResult("P", "train", "literal", 0, {k: torch.zeros(0) for k in METRIC_KEYS}).rate("success")
     assert math.isnan(empty.rate) and math.isnan(empty.low) and math.isnan(empty.high) and empty.n == 0
+
+
+# ---------------------------------------------------------------------------- issue 53: loaded policies
+def test_a_shipped_checkpoint_is_named_the_same_from_any_folder(tmp_path, monkeypatch):
+    """A path relative to the shipped collection (or as from a clone's root, checkpoints/...)
+    names a shipped checkpoint from any folder, as it does from the wheel; a file of that name in
+    the working folder comes first; a missing one says where the shipped ones are."""
+    import shutil
+
+    from flock_torchrl import load_policy, resolve
+    from flock_torchrl.config import shipped_checkpoints_dir
+
+    monkeypatch.chdir(tmp_path)
+    threed = load_policy("paper_fit/threed/policy3_g/seed0.pt")
+    assert threed.dims == 3 and threed.flock_meta["policy_id"] == "policy3_g"
+    (handle,) = resolve("checkpoints/paper_fit/threed/policy3_g/seed1.pt")
+    assert handle.origin == str(shipped_checkpoints_dir() / "paper_fit" / "threed" / "policy3_g" / "seed1.pt")
+    assert load_policy("checkpoints/paper_fit/policy3_g/seed0.pt").dims == 2
+    mine = tmp_path / "paper_fit" / "policy3_g"
+    mine.mkdir(parents=True)
+    shutil.copy(shipped_checkpoints_dir() / "paper_fit" / "policy1" / "seed0.pt", mine / "seed0.pt")
+    assert load_policy("paper_fit/policy3_g/seed0.pt").flock_meta["policy_id"] == "policy1"   # the working folder's
+    with pytest.raises(CheckpointError) as info:
+        load_policy("paper_fit/threed/policy3_g/seed99.pt")
+    message = str(info.value)
+    assert message.startswith("no checkpoint at paper_fit/threed/policy3_g/seed99.pt;") and "\n" not in message
+    assert str(shipped_checkpoints_dir()) in message and "paper_fit/threed/policy3_g/seed0.pt" in message
+    with pytest.raises(CheckpointError, match=f"the shipped checkpoints are in {shipped_checkpoints_dir()}"):
+        evaluate(str(tmp_path / "missing.pt"), n_episodes=1)
+
+
+@pytest.mark.parametrize("scenario, dims, seeds", [("wall3d", 3, 5), ("s2", 2, 10)])
+def test_a_learned_policy_of_the_evaluate_app_flies_its_shipped_seeds_of_the_scenarios_dimension(scenario, dims, seeds):
+    """policy=policy3_g scenario=wall3d evaluates the 3-D seeds (checkpoints/<reading>/threed/),
+    not the 2-D ones; on either the world is the one those seeds were trained in (their fields,
+    the taper saved before it existed among them), so the env builds as the app's would."""
+    from flock_torchrl.config import compose
+    from flock_torchrl.run.evaluation import checkpoint_world, evaluated_handles
+    from flock_torchrl.run.rollout import policy_env
+
+    overrides = ["policy=policy3_g", f"scenario={scenario}"]
+    cfg = checkpoint_world(compose("evaluate", overrides), overrides)
+    checked = EvaluateConfig.from_config(cfg)
+    handles = evaluated_handles(checked)
+    assert len(handles) == seeds and {h.id for h in handles} == {"policy3_g"}
+    assert all(("/threed/" in h.origin) == (dims == 3) for h in handles)
+    assert cfg.scenario.tangential_taper == handles[0].scenario["tangential_taper"]
+    env = policy_env(handles[0], checked.scenario, num_envs=1, seed=0)
+    assert env.cfg.dims == dims and handles[0].build(env) is not None
+
+
+def test_a_learned_name_without_seeds_of_the_worlds_dimension_names_those_there(tmp_path):
+    from flock_torchrl import resolve
+
+    with pytest.raises(CheckpointError) as info:
+        resolve("policy1", "paper_fit", dims=3)
+    assert "threed/policy1 holds no seed*.pt (the 3-D policies there: policy2_g, policy3_g)" in str(info.value)
+    # A 2-D seed built for a 3-D world (evaluate("policy3_g", scenario="wall3d") loads the 2-D
+    # seeds) says where the 3-D ones are.
+    (handle,) = resolve("paper_fit/policy3_g/seed0.pt")
+    with pytest.raises(ConfigError, match="its shipped 3-D seeds are .*threed/policy3_g/seed<k>.pt"):
+        handle.build(FlockingEnv("wall3d", num_envs=1, policy_id="policy3_g"))
+
+
+def test_a_policy_of_the_other_dimension_in_an_envs_rollout_is_one_line():
+    """env.rollout(n, policy) with a 2-D checkpoint in a 3-D env (or the reverse) says so, where
+    torch said "mat1 and mat2 shapes cannot be multiplied (20x27 and 17x128)"."""
+    from flock_torchrl import load_policy
+
+    flat, space = load_policy("paper_fit/policy3_g/seed0.pt"), load_policy("paper_fit/threed/policy3_g/seed0.pt")
+    for policy, scenario, words in ((flat, "wall3d", "trained in a 2-D world (observations of 17) and is given a "
+                                                      "3-D world's (observations of 27): fly it in a 2-D scenario"),
+                                    (space, "s1", "trained in a 3-D world (observations of 27) and is given a "
+                                                  "2-D world's (observations of 17): fly it in a 3-D scenario")):
+        env = FlockingEnv(scenario, num_envs=2, seed=0, policy_id="policy3_g")
+        with pytest.raises(ValueError) as info:
+            env.rollout(3, policy)
+        assert words in str(info.value) and "\n" not in str(info.value), str(info.value)
+        assert "mat1" not in str(info.value)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA machine has what is asked for")
+def test_cuda_asked_of_a_cpu_only_torch_is_one_line():
+    """load_policy(..., device="cuda") and evaluate(..., device="cuda") say what FlockingEnv(device="cuda")
+    says, where torch raised "AssertionError: Torch not compiled with CUDA enabled"."""
+    from flock_torchrl import load_policy
+
+    with pytest.raises(ValueError) as env_error:
+        FlockingEnv("s1", num_envs=1, device="cuda")
+    for call in (lambda: load_policy("paper_fit/policy3_g/seed0.pt", device="cuda"),
+                 lambda: evaluate("paper_fit/policy3_g/seed0.pt", "s1", n_episodes=1, device="cuda"),
+                 lambda: evaluate("policy3_g", "s1", n_episodes=1, device="cuda")):
+        with pytest.raises(ValueError) as info:
+            call()
+        assert str(info.value) == str(env_error.value) and "no CUDA device" in str(info.value)
+
+
+def test_a_loaded_policy_acts_without_gradients_and_trains_when_asked():
+    """load_policy's parameters do not require gradients, so env.rollout(n, policy) builds no
+    autograd graph through the differentiable step; requires_grad_(True) makes it trainable again
+    (and moving it keeps that)."""
+    from flock_torchrl import load_policy
+
+    policy = load_policy("paper_fit/policy3_g/seed0.pt")
+    assert not any(p.requires_grad for p in policy.parameters())
+    env = FlockingEnv("train", num_envs=4, seed=0, policy_id="policy3_g")
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.rollout(5, policy, break_when_any_done=False)
+    assert td["agents", "action"].grad_fn is None and td["next", "agents", "observation"].grad_fn is None
+    # Further training: ask for gradients, then the actions carry them back to the weights.
+    policy.requires_grad_(True)
+    policy.follow("cpu")
+    assert all(p.requires_grad for p in policy.parameters())
+    optimiser = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    before = [p.detach().clone() for p in policy.parameters()]
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        acted = policy(td.select(("agents", "observation")).clone())   # the observations it met
+    assert acted["agents", "action"].requires_grad
+    acted["agents", "action"].pow(2).mean().backward()
+    assert all(p.grad is not None for p in policy.parameters())
+    optimiser.step()
+    assert any(not torch.equal(a, b) for a, b in zip(before, policy.parameters()))

@@ -30,8 +30,10 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from ..config import POLICY_SCENARIO_FIELDS, ScenarioConfig, saved_scenario
+from ..config.paths import shipped_path, where_shipped
 from ..io import atomic_write
 from ..world.sensors import observation_size
+from ..world.state import torch_device
 from .models import ACTION, OBS, actor_of_sizes
 
 FORMAT_VERSION = 2
@@ -93,16 +95,23 @@ def _save(obj: Any, handle: Any) -> None:
 
 
 def resolve_path(path: str | os.PathLike) -> Path:
-    """A checkpoint file, or a run folder's ``last.pt``."""
-    path = Path(path)
+    """A checkpoint file, or a run folder's ``last.pt``; a relative path that names nothing from
+    the working folder but a shipped checkpoint is that one (:func:`~flock_torchrl.config.paths.shipped_path`:
+    ``paper_fit/threed/policy3_g/seed0.pt`` from any folder, a clone's or the wheel's)."""
+    path = shipped_path(path)
     return path / LAST if path.is_dir() else path
+
+
+def no_checkpoint(path: str | os.PathLike) -> CheckpointError:
+    """``no checkpoint at <path>``, and where the shipped ones are and how to name them."""
+    return CheckpointError(f"no checkpoint at {path}; {where_shipped()}")
 
 
 def load_checkpoint(path: str | os.PathLike, kind: str | None = None) -> dict[str, Any]:
     """Read a checkpoint; raise :class:`CheckpointError` unless it is intact and of ``kind``."""
     path = resolve_path(path)
     if not path.is_file():
-        raise CheckpointError(f"no checkpoint at {path}")
+        raise no_checkpoint(path)
     if path.stat().st_size == 0:
         raise CheckpointError(f"{path} is empty (0 bytes): not a checkpoint (a copy or a write that did not finish?)")
     try:
@@ -289,13 +298,19 @@ class SharedPolicy(TensorDictModuleBase):
     """A trained shared actor, ready for ``env.rollout`` with any number of UAVs.
 
     ``flock_meta`` carries the policy's id and name, the reading and scenario it was trained
-    in, and the scenario fields it sets (``policy_scenario``).
+    in, and the scenario fields it sets (``policy_scenario``); ``dims`` is the dimension of its
+    world (2, or 3: docs/specification.md section 11), and observations of another world's size
+    are refused in one line naming it.
+
+    Its parameters do not require gradients: a policy loaded to act builds no autograd graph
+    through the env's differentiable step. To train it further, ask for them:
+    ``policy.requires_grad_(True)`` (before building its optimiser).
     """
 
     def __init__(self, actor_state: dict, meta: dict[str, Any], device: str | torch.device | None = None,
                  origin: str = "the checkpoint") -> None:
         super().__init__()
-        device = torch.device("cpu" if device is None else device)
+        device = torch_device("cpu" if device is None else device)  # CUDA without CUDA: FlockingEnv's one line
         self.in_keys = [OBS]
         self.out_keys = [ACTION]
         try:
@@ -320,7 +335,12 @@ class SharedPolicy(TensorDictModuleBase):
                                       f"(obs {observation_size(scenario)}, hidden {meta['hidden']}, depth "
                                       f"{meta['depth']}) needs {shape(want)}")
         self.actor.load_state_dict(actor_state)
+        self.actor.requires_grad_(False)  # acting: no autograd graph (requires_grad_(True) to train it)
         self._device = device  # where the actor and its action box are
+        self._origin = origin
+        fields = dataclasses.asdict(scenario)
+        # The observation's length in either dimension, to name a world of the other one.
+        self._observation_sizes = {dims: observation_size(_Dims(fields, dims)) for dims in (2, 3)}
 
     def _build(self, device: torch.device) -> Any:
         """A fresh actor of this policy's sizes on ``device``, with its action box there too."""
@@ -332,19 +352,46 @@ class SharedPolicy(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation = tensordict.get(OBS, None)
-        if observation is not None and observation.device != self._device:
-            self.follow(observation.device)
+        if observation is not None:
+            if observation.shape[-1] != self._sizes[0]:
+                self._refuse(observation.shape[-1])
+            if observation.device != self._device:
+                self.follow(observation.device)
         return self.actor(tensordict)
+
+    def _refuse(self, size: int) -> None:
+        """One line for observations of another length than the policy's: another dimension's
+        world (a 2-D policy in a 3-D env, or the reverse), else another sensing."""
+        n_obs = self._sizes[0]
+        other = next((d for d, n in self._observation_sizes.items() if n == size and d != self.dims), None)
+        if other is not None:
+            raise ValueError(f"{self._origin} was trained in a {self.dims}-D world (observations of {n_obs}) and is "
+                             f"given a {other}-D world's (observations of {size}): fly it in a {self.dims}-D "
+                             f"scenario (scenario.dims={self.dims})")
+        raise ValueError(f"{self._origin} reads observations of {n_obs} (its scenario's n_scan and n_cam) and is "
+                         f"given observations of {size}: build its env with FlockingEnv(..., "
+                         f"policy_id={self.flock_meta['policy_id']!r}) in its own world")
 
     def follow(self, device: str | torch.device) -> "SharedPolicy":
         """Move the actor, and the action box its distribution reads, to ``device`` (what a
-        call with observations on another device does by itself: the policy follows its env)."""
-        device = torch.device(device)
+        call with observations on another device does by itself: the policy follows its env);
+        whether its parameters require gradients stays as it was."""
+        device = torch_device(device)
+        grad = any(p.requires_grad for p in self.actor.parameters())
         state = {k: v.to(device) for k, v in self.actor.state_dict().items()}
         self.actor = self._build(device)
         self.actor.load_state_dict(state)
+        self.actor.requires_grad_(grad)
         self._device = device
         return self
+
+
+class _Dims:
+    """A scenario's fields with another ``dims``: what :func:`observation_size` reads."""
+
+    def __init__(self, fields: dict[str, Any], dims: int) -> None:
+        self.__dict__.update(fields)
+        self.dims = dims
 
 
 def load_policy(path: str | os.PathLike, device: str | torch.device | None = None, member: int | None = None
@@ -359,6 +406,11 @@ def load_policy(path: str | os.PathLike, device: str | torch.device | None = Non
 
     A population's checkpoint (``population=K``) holds K policies: ``member=k`` chooses one
     (``load_policy(run, member=1)``: seed ``seed + 1``); without it the error lists them.
+
+    ``path`` is a file or run folder, or a shipped checkpoint named by its path in the shipped
+    collection (``paper_fit/threed/policy3_g/seed0.pt``; ``checkpoints/...`` as from a clone's
+    root), the same from any folder, a clone or the wheel. Its parameters do not require
+    gradients (acting builds no autograd graph); ``policy.requires_grad_(True)`` to train it further.
     """
     origin = str(resolve_path(path))
     payload = policy_of(load_checkpoint(path), origin, member)
@@ -366,5 +418,5 @@ def load_policy(path: str | os.PathLike, device: str | torch.device | None = Non
 
 
 __all__ = ["CheckpointError", "FORMAT", "LAST", "SharedPolicy", "export_policy", "load_checkpoint", "load_policy",
-           "member_list", "members_of", "policy_fields", "policy_of", "policy_payload", "slim_payload",
-           "resolve_path", "save_checkpoint"]
+           "member_list", "members_of", "no_checkpoint", "policy_fields", "policy_of", "policy_payload",
+           "slim_payload", "resolve_path", "save_checkpoint"]

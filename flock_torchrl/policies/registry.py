@@ -4,8 +4,10 @@ Training, evaluation, the tables and the figures all ask :func:`resolve`, which 
 
 * a policy id (``policy3_g``, ``Policy3-G``, ``policy_ma``) into its composed config
   (``conf/policy/<id>.yaml``): a rule-based controller, or the shipped checkpoints of a
-  learned policy under a reading (``checkpoints/<reading>/<id>/seed<k>.pt``);
-* a checkpoint path into the policy it holds, with the reading it was trained under;
+  learned policy under a reading (``checkpoints/<reading>/<id>/seed<k>.pt``; for a 3-D world
+  ``checkpoints/<reading>/threed/<id>/seed<k>.pt``);
+* a checkpoint path into the policy it holds, with the reading it was trained under (a path
+  relative to the shipped checkpoints names one of them from any folder);
 * a TensorDict module into itself;
 
 into :class:`PolicyHandle` s: the policy's name, the scenario fields it sets, the reading it
@@ -22,7 +24,9 @@ from typing import Any, Callable, Mapping
 
 from ..config import (POLICY_SCENARIO_FIELDS, ConfigError, PolicyConfig, available, compose_world, contender_name,
                       default_checkpoints_dir, is_file_target)
-from .checkpoint import CheckpointError, SharedPolicy, load_checkpoint, members_of, policy_of, resolve_path
+from ..config.paths import DIMS_FOLDER, seeds_dir, shipped_checkpoints_dir
+from .checkpoint import (CheckpointError, SharedPolicy, load_checkpoint, members_of, no_checkpoint, policy_of,
+                         resolve_path)
 
 Module = Callable[[Any], Any]
 
@@ -120,10 +124,15 @@ def checkpoint_handle(path: str | os.PathLike, device: str = "cpu", member: int 
 
 def same_dims(module: Any, env: Any, origin: str) -> Any:
     """``module``, if it was trained in ``env``'s dimension (docs/specification.md section 11);
-    else a :class:`ConfigError` naming ``scenario.dims``."""
+    else a :class:`ConfigError` naming ``scenario.dims`` and, for a shipped policy, where its
+    seeds of the env's dimension are."""
     if module.dims != env.cfg.dims:
+        policy, reading = module.flock_meta["policy_id"], module.flock_meta["reading"]
+        folder = seeds_dir(shipped_checkpoints_dir(), reading, env.cfg.dims) / policy
+        shipped = f"; its shipped {env.cfg.dims}-D seeds are {folder}/seed<k>.pt" if shipped_checkpoints(
+            policy, folder.parent) else ""
         raise ConfigError("scenario.dims", f"is {env.cfg.dims} here, but {origin} was trained in a world with dims "
-                                           f"{module.dims}: evaluate it on a {module.dims}-D scenario")
+                                           f"{module.dims}: evaluate it on a {module.dims}-D scenario{shipped}")
     return module
 
 
@@ -301,7 +310,7 @@ def _is_path(policy: Any) -> bool:
 
 def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.PathLike | None = None,
             device: str = "cpu", policy_config: PolicyConfig | None = None,
-            member: int | None = None) -> list[PolicyHandle]:
+            member: int | None = None, dims: int = 2) -> list[PolicyHandle]:
     """Every policy ``policy`` stands for (one per shipped seed for a learned name).
 
     Args:
@@ -315,6 +324,8 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
             with the user's config folders); otherwise ``conf/policy/<id>.yaml`` is composed.
         member: of a population's checkpoint, the member to take (``None``: every member, each
             named by its member and seed); refused for anything else.
+        dims: the world's dimension: a learned name's seeds for a 3-D world are those under
+            ``<checkpoints_dir>/<reading>/threed/`` (``make ship-threed``).
     """
     if member is not None and not _is_path(policy):
         raise ConfigError("member", f"chooses a member of a population's checkpoint; {policy!r} is not a checkpoint")
@@ -325,7 +336,7 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
     elif _is_path(policy):
         path = resolve_path(policy)
         if not path.is_file():
-            raise CheckpointError(f"no checkpoint at {path}")
+            raise no_checkpoint(path)
         handles = checkpoint_handles(path, device, member)
     else:
         if policy_config is not None:
@@ -337,17 +348,25 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
         else:
             reading = reading or compose_world().scenario.reading
             root = Path(checkpoints_dir if checkpoints_dir is not None else default_checkpoints_dir())
-            paths = shipped_checkpoints(config.id, root / reading)
+            folder = seeds_dir(root, reading, dims)
+            paths = shipped_checkpoints(config.id, folder)
             if not paths:
                 raise CheckpointError(
-                    f"{config.name} is a learned policy and {root / reading / config.id} holds no seed*.pt; point "
-                    f"checkpoints_dir= at the shipped checkpoints, train it (scripts/train.py policy={config.id} "
-                    f"reading={reading}) or pass a checkpoint path")
+                    f"{config.name} is a learned policy and {folder / config.id} holds no seed*.pt"
+                    f"{_shipped_for(folder, dims)}; point checkpoints_dir= at the shipped checkpoints, train it "
+                    f"(scripts/train.py policy={config.id} reading={reading}) or pass a checkpoint path")
             handles = [checkpoint_handle(p, device) for p in paths]
     if reading is not None:
         for handle in handles:
             handle.check_reading(reading)
     return handles
+
+
+def _shipped_for(folder: Path, dims: int) -> str:
+    """`` (the N-D policies there: a, b)``: what the folder holds for that dimension, if anything."""
+    held = sorted(p.name for p in folder.glob("*") if p.is_dir() and any(p.glob("seed*.pt"))
+                  and p.name not in DIMS_FOLDER.values()) if folder.is_dir() else []
+    return f" (the {dims}-D policies there: {', '.join(held)})" if held else ""
 
 
 def make_policy(policy: Any, env: Any, device: str | None = None) -> Module:
@@ -365,7 +384,8 @@ def make_policy(policy: Any, env: Any, device: str | None = None) -> Module:
 
             algo = compose_world("train", env.cfg.reading, config.id).algo
             return make_actor(env, stochastic=algo.name != "ddpg", hidden=algo.hidden, depth=algo.depth)
-    (handle,) = resolve(policy, env.cfg.reading, device=str(env.device if device is None else device))[:1]
+    (handle,) = resolve(policy, env.cfg.reading, device=str(env.device if device is None else device),
+                        dims=env.cfg.dims)[:1]
     return handle.build(env)
 
 

@@ -11,18 +11,22 @@ from typing import Callable, Sequence
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from ..config import ConfigError, EvaluateConfig
-from ..policies.registry import PolicyHandle, contender_handle, policy_config_of, resolve, world_label
+from ..config.paths import seeds_dir
+from ..policies.registry import (PolicyHandle, checkpoint_handle, contender_handle, policy_config_of, resolve,
+                                 shipped_checkpoints, world_label)
 from .results import EvaluationResult, write_result
 from .rollout import evaluate_handle, try_contender
 
 
 def evaluated_handles(cfg: EvaluateConfig) -> list[PolicyHandle]:
     """What ``cfg`` evaluates: the contender, the checkpoint (a population's: every member, or
-    ``member``), or the policy's shipped seeds."""
+    ``member``), or the policy's shipped seeds of the scenario's dimension (a 3-D scenario's:
+    ``<checkpoints_dir>/<reading>/threed/<policy>/``)."""
     if cfg.contender is not None:
         return [contender_handle(cfg.contender, cfg.device, key="contender")]
     handles = resolve(cfg.checkpoint or cfg.policy.id, cfg.scenario.reading, cfg.checkpoints_dir,
-                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy, member=cfg.member)
+                      device=cfg.device, policy_config=None if cfg.checkpoint else cfg.policy, member=cfg.member,
+                      dims=cfg.scenario.dims)
     if cfg.checkpoint and handles[0].id != cfg.policy.id:
         raise ConfigError("policy", f"{cfg.checkpoint} holds {handles[0].name}, not {cfg.policy.name}: leave policy= "
                                     f"out (the checkpoint's policy is taken) or pass policy={handles[0].id}")
@@ -30,17 +34,24 @@ def evaluated_handles(cfg: EvaluateConfig) -> list[PolicyHandle]:
 
 
 def checkpoint_world(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
-    """The evaluate app's composed ``cfg`` in the world of the policy its ``checkpoint`` holds: its
-    ``policy`` node (when the command line, ``overrides``, chose no ``policy=``) and the scenario
-    fields it flies with, but those the command line sets itself (a conflict is then
-    :func:`~.rollout.policy_env`'s one-line error). With another ``policy=`` given, ``cfg`` as it is
+    """The evaluate app's composed ``cfg`` in the world of the policy it evaluates: of its
+    ``checkpoint``, that policy's ``policy`` node (when the command line, ``overrides``, chose no
+    ``policy=``) and the scenario fields it flies with; of a learned ``policy=`` without one, the
+    scenario fields its shipped seeds fly with (those of the scenario's dimension). The fields the
+    command line sets itself stay (a conflict is then :func:`~.rollout.policy_env`'s one-line
+    error). With another ``policy=`` given than the checkpoint's, ``cfg`` as it is
     (:func:`evaluated_handles` refuses a policy other than the checkpoint's)."""
     given = {str(o).lstrip("+~").split("=", 1)[0] for o in overrides}
-    if not cfg.get("checkpoint") or cfg.get("contender") is not None:
+    if cfg.get("contender") is not None:
         return cfg
-    handle = resolve(str(cfg.checkpoint), member=cfg.get("member"))[0]  # a population's members share their policy
-    if handle.id != cfg.policy.id and "policy" in given:
-        return cfg
+    if cfg.get("checkpoint"):
+        handle = resolve(str(cfg.checkpoint), member=cfg.get("member"))[0]  # a population's members share their policy
+        if handle.id != cfg.policy.id and "policy" in given:
+            return cfg
+    else:
+        handle = shipped_seed(cfg)
+        if handle is None:
+            return cfg
     out = copy.deepcopy(cfg)
     with open_dict(out):
         if handle.id != cfg.policy.id:
@@ -51,6 +62,17 @@ def checkpoint_world(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
             if f"scenario.{key}" not in given:
                 out.scenario[key] = value
     return out
+
+
+def shipped_seed(cfg: DictConfig) -> PolicyHandle | None:
+    """The first shipped seed of a learned ``cfg.policy`` under ``cfg.checkpoints_dir``, in the
+    scenario's dimension (its seeds share the world they were trained in); ``None`` for a
+    rule-based policy or where none is shipped (:func:`evaluated_handles` then says so)."""
+    if cfg.policy.get("kind") != "learned":
+        return None
+    folder = seeds_dir(str(cfg.checkpoints_dir), str(cfg.scenario.reading), int(cfg.scenario.get("dims", 2)))
+    seeds = shipped_checkpoints(str(cfg.policy.id), folder)
+    return checkpoint_handle(seeds[0]) if seeds else None
 
 
 def check_evaluation(cfg: EvaluateConfig) -> None:
@@ -84,4 +106,4 @@ def evaluate_app(cfg: EvaluateConfig, out_dir: str | Path, log: Callable[[str], 
     return result
 
 
-__all__ = ["check_evaluation", "checkpoint_world", "evaluate_app", "evaluated_handles"]
+__all__ = ["check_evaluation", "checkpoint_world", "evaluate_app", "evaluated_handles", "shipped_seed"]
