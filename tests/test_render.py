@@ -119,3 +119,66 @@ def test_reward_curves_from_checkpoints(tmp_path):
         training_curve(root / "literal" / "policy3_g" / "seed0.pt", "successes")
     assert make_figures(app_config("figures", reading="paper_fit", figs=[4], checkpoints_dir=root),
                         tmp_path / "figures2", log=lambda m: None) == []
+
+
+def labels_outside(fig) -> list[str]:
+    """Every axis label and tick label (of the ticks within the view) of ``fig`` (drawn) that does
+    not lie inside the picture."""
+    renderer = fig.canvas.get_renderer()
+    width, height = fig.bbox.width, fig.bbox.height
+    outside = []
+    for i, ax in enumerate(fig.axes):
+        shown = [tick.label1 for axis in (ax.xaxis, ax.yaxis) for tick in axis.get_major_ticks()
+                 if min(axis.get_view_interval()) <= tick.get_loc() <= max(axis.get_view_interval())]
+        for text in (ax.xaxis.label, ax.yaxis.label, *shown):
+            if not text.get_visible() or not text.get_text():
+                continue
+            box = text.get_window_extent(renderer)
+            if box.x0 < 0 or box.y0 < 0 or box.x1 > width or box.y1 > height:
+                outside.append(f"axes {i} {text.get_text()!r} at {[round(v) for v in box.extents]} in "
+                               f"{width:.0f} x {height:.0f}")
+    return outside
+
+
+def test_a_3d_frames_axis_labels_lie_inside_the_picture(tmp_path, monkeypatch):
+    """A 3-D frame's top view and side view keep their axis and tick labels inside the picture
+    at the sizes it is drawn at: env.render's 512 x 512 (its y label was clipped), a GIF's default
+    400 x 400 (the top view's y label and the side view's x label were lost), the published
+    300 x 600 GIFs and 360 x 720 frames; each GIF frame as its first."""
+    from flock_torchrl.world import frame
+
+    drawn = []
+    figure = frame.frame_figure
+
+    def keep(*args, **kwargs):
+        drawn.append(figure(*args, **kwargs))
+        return drawn[-1]
+
+    monkeypatch.setattr(frame, "frame_figure", keep)
+    monkeypatch.setattr(frame, "_LAYOUTS", {})
+    env = FlockingEnv("wall3d", num_envs=1, seed=0, extras="physics")
+    with torch.no_grad():
+        rollout = env.rollout(6, break_when_any_done=False)
+    env.reset()
+    assert env.render("rgb_array").shape == (512, 512, 3)
+    for size in ((300, 600), (360, 720)):
+        render_frame(env, 0, size=size)
+    save_animation(rollout, env, tmp_path / "space.gif", stride=3)
+    assert len(drawn) == 6 and [f.bbox.height for f in drawn] == [512, 300, 360, 400, 400, 400]
+    for fig in drawn:
+        assert len(fig.axes) == 2 and all(ax.get_xlabel() and ax.get_ylabel() for ax in fig.axes)
+        assert labels_outside(fig) == []
+    first, later = drawn[3], drawn[5]   # a GIF's later frames take the first one's layout
+    assert [ax.get_position().bounds for ax in first.axes] == [ax.get_position().bounds for ax in later.axes]
+
+
+def test_the_label_check_sees_a_clipped_label():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(4, 4), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.0, 0.3, 0.5, 0.5))   # no room left of it
+    ax.set_ylabel("y (m)")
+    fig.canvas.draw()
+    assert any("'y (m)'" in line for line in labels_outside(fig))

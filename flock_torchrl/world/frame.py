@@ -1,7 +1,7 @@
 """Drawing one instant of the world: the frame ``FlockingEnv.render`` returns.
 
-Matplotlib's object API on an Agg canvas (no pyplot, no display, no global state), so it runs
-headless and inside tests: fixed, moving and drawn obstacles (red; each world's own), the goal circle (green, radius
+Matplotlib's object API on an Agg canvas (no pyplot, no display, no global state but a cache of
+3-D layouts), so it runs headless and inside tests: fixed, moving and drawn obstacles (red; each world's own), the goal circle (green, radius
 ``goal_radius``), UAVs as triangles along their heading (blue) and their camera fields of view
 (wedges of radius ``camera_range`` reaching ``half_fov`` either side of the heading). Whole
 episodes and the paper's figures are drawn by :mod:`flock_torchrl.report.figures`.
@@ -30,6 +30,7 @@ GOAL_COLOR = "#2ca02c"
 UAV_COLOR = "#1f77b4"
 FOV_COLOR = "#1f77b4"
 DPI = 100
+SIDE_ASPECT = 0.75   # a 3-D frame's side view: its height over its width
 
 
 # ---------------------------------------------------------------------------- world state
@@ -202,8 +203,10 @@ def image_size(size: int | tuple[int, int]) -> tuple[int, int]:
     return int(h), int(w)
 
 
-def _figure(height: int, width: int) -> tuple[Figure, FigureCanvasAgg]:
+def _figure(height: int, width: int, constrained: bool = False) -> tuple[Figure, FigureCanvasAgg]:
     fig = Figure(figsize=(width / DPI, height / DPI), dpi=DPI)
+    if constrained:  # matplotlib makes room for the labels (a few pixels of padding around them)
+        fig.set_layout_engine("constrained", w_pad=2 / DPI, h_pad=2 / DPI, wspace=0.04)
     return fig, FigureCanvasAgg(fig)
 
 
@@ -294,27 +297,60 @@ def draw_side(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float, 
     ax.scatter(s_uav, state.altitude, s=8, color=UAV_COLOR, edgecolors="black", linewidths=0.3, zorder=4)
     ax.set_xlim(-half_range, half_range)
     ax.set_ylim(ground - 2.0, ceiling + 2.0)
-    ax.set_xlabel("along the line from the area's centre to the goal (m)", fontsize=6)
+    ax.set_xlabel("along the centre-to-goal line (m)", fontsize=6)
     ax.set_ylabel("altitude (m)", fontsize=6)
     ax.tick_params(labelsize=5)
 
 
-def frame_image(cfg: Any, state: WorldState, extent: tuple[float, float, float, float], height: int, width: int,
-           show_fov: bool, title: str | None) -> np.ndarray:
-    fig, canvas = _figure(height, width)
+# Where a 3-D frame's two views go, by what decides it (the pixels, the extent, the altitudes):
+# matplotlib's constrained layout works it out for the first frame of a size; a GIF's other frames,
+# whose axes and labels are the same, take its positions as they are (the last LAYOUTS_KEPT kept).
+_LAYOUTS: dict[tuple, tuple[tuple[float, ...], tuple[float, ...]]] = {}
+LAYOUTS_KEPT = 32
+
+
+def frame_figure(cfg: Any, state: WorldState, extent: tuple[float, float, float, float], height: int, width: int,
+                 show_fov: bool, title: str | None) -> Figure:
+    """The frame as a figure of ``height x width`` pixels on an Agg canvas (:func:`frame_image`
+    draws it and reads its pixels).
+
+    2-D: the world fills it, no axes. 3-D: the top view (left, with its axes) and the side view
+    (right), laid out by matplotlib's constrained layout, so that every axis label and tick label
+    lies inside the picture at the sizes it is drawn at (``env.render``'s 512 x 512, a GIF's 400 x
+    400 or 300 x 600)."""
     space = state.altitude is not None
-    if space:  # 3-D: top view (left, framed with its axes) and side view (right)
-        ax = fig.add_axes((0.07, 0.12, 0.42, 0.76))
-        draw_side(fig.add_axes((0.58, 0.25, 0.4, 0.5)), cfg, state, extent)
-    else:
+    if not space:
+        fig, canvas = _figure(height, width)
         ax = fig.add_axes((0, 0, 1, 1))
-    draw_world(ax, cfg, state, extent, show_fov=show_fov)
-    if space:
+        draw_world(ax, cfg, state, extent, show_fov=show_fov)
+    else:
+        key = (height, width, tuple(float(e) for e in extent), tuple(float(a) for a in cfg.altitude))
+        known = _LAYOUTS.get(key)
+        fig, canvas = _figure(height, width, constrained=known is None)
+        if known is None:
+            ax, side = fig.subplots(1, 2, width_ratios=(1.0, 1.0))
+        else:
+            ax, side = fig.add_axes(known[0]), fig.add_axes(known[1])
+        draw_side(side, cfg, state, extent)
+        side.set_box_aspect(SIDE_ASPECT)
+        draw_world(ax, cfg, state, extent, show_fov=show_fov)
         ax.set_axis_on()
         style_axes(ax, extent, None, axes=True)
+        if known is None:
+            canvas.draw()  # the layout engine places the views
+            _LAYOUTS[key] = (ax.get_position(original=True).bounds, side.get_position(original=True).bounds)
+            while len(_LAYOUTS) > LAYOUTS_KEPT:
+                del _LAYOUTS[next(iter(_LAYOUTS))]
+            fig.set_layout_engine("none")
     if title:
         ax.text(0.02, 0.98, title, transform=ax.transAxes, ha="left", va="top", fontsize=8)
-    return _to_rgb(canvas, height, width)
+    return fig
+
+
+def frame_image(cfg: Any, state: WorldState, extent: tuple[float, float, float, float], height: int, width: int,
+           show_fov: bool, title: str | None) -> np.ndarray:
+    fig = frame_figure(cfg, state, extent, height, width, show_fov, title)
+    return _to_rgb(fig.canvas, height, width)
 
 
 def render_frame(env: Any, env_index: int = 0, size: int | tuple[int, int] = 512,
