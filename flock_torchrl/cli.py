@@ -389,11 +389,14 @@ def _jobs_in_workers(config: DictConfig) -> bool:
 
 def main(app: str, noted: list[int] | None = None) -> Any:
     """Run the Hydra app ``app`` on ``sys.argv`` (a console script or ``scripts/<app>.py``);
-    ``noted``: stop signals a script noted while it imported the package."""
+    ``noted``: stop signals a script noted while it imported the package (``scripts/_start.py``):
+    the app stops on the first at once, in one line, before it reads or writes anything."""
     import hydra
 
     try:
         APP_SIGNALS.start(noted)
+        if APP_SIGNALS.noted:
+            raise Stopped(APP_SIGNALS.noted[0])
         _guard(lambda: check_yaml_files(composed_yaml_files(config_folders(sys.argv[1:]), app, sys.argv[1:])))
         result = hydra.main(version_base=None, config_path=str(CONF_DIR), config_name=app)(_task(app))()
         stopped = APP_SIGNALS.sweep_stopped()

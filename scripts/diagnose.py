@@ -10,8 +10,7 @@ Each policy (a key of conf/diagnose.yaml's catalogue) pools its shipped seeds (e
 cell). Writes rates.csv, crashes.csv and diagnosis.md into its output folder.
 """
 
-
-from flock_torchrl.cli import diagnose_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    diagnose_main()
+    start("diagnose")

@@ -7,8 +7,7 @@
 Writes episodes.csv (one row per episode) and summary.json into outputs/evaluate/...
 """
 
-
-from flock_torchrl.cli import evaluate_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    evaluate_main()
+    start("evaluate")

@@ -7,8 +7,7 @@ flock_torchrl.report.figures).
 Writes into outputs/figures/<reading>/.
 """
 
-
-from flock_torchrl.cli import figures_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    figures_main()
+    start("figures")

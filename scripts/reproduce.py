@@ -8,8 +8,7 @@ Writes table<k>.md/.csv (ours, the paper's, the difference), table<k>_seeds.csv,
 table<k>_episodes.csv.gz, fidelity.md and summary.md into outputs/reproduce/<reading>/.
 """
 
-
-from flock_torchrl.cli import reproduce_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    reproduce_main()
+    start("reproduce")

@@ -4,8 +4,7 @@ flock_torchrl.report.scaling).
     python scripts/scaling.py reading=paper_fit
 """
 
-
-from flock_torchrl.cli import scaling_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    scaling_main()
+    start("scaling")

@@ -7,8 +7,7 @@ Every run is read and every conflict (two runs holding one policy's seed) found 
 file is written: a conflict is one line, exit 2, and checkpoints/ is left as it was.
 """
 
-
-from flock_torchrl.cli import ship_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    ship_main()
+    start("ship")

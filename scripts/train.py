@@ -6,22 +6,7 @@
     python scripts/train.py policy=policy3_g --cfg job                    # print what would run
 """
 
-import signal
-
-
-_noted: list = []
-
-
-def _note(signum, frame):
-    # A stop signal while Python loads torch and the package (seconds) is noted, and the app
-    # stops on it once the run is checked, before anything is written: raised inside a library's
-    # import, it could leave that library half-built and surface as another error.
-    _noted.append(signum)
-
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    for _signum in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", signal.SIGTERM)):
-        signal.signal(_signum, _note)
-    from flock_torchrl.cli import train_main
-
-    train_main(_noted)
+    start("train")

@@ -5,8 +5,7 @@ logic: flock_torchrl.report.tuning).
     python scripts/tune_baselines.py evaluate=true episodes=500
 """
 
-
-from flock_torchrl.cli import tune_baselines_main
+from _start import start  # before anything heavy: Ctrl-C while torch loads is one line
 
 if __name__ == "__main__":
-    tune_baselines_main()
+    start("tune_baselines")

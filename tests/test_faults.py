@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import script_env
+from helpers import first_fast, script_env
 
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
@@ -104,6 +104,19 @@ def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_pa
     one_line(proc.stderr, key)
     if gib:  # the limit is the bound, unless the machine has even less free
         assert f"its ulimit -v of {gib:.1f} GiB" in proc.stderr or "what this machine has free" in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("app", first_fast(["evaluate", "train", "diagnose", "scaling", "reproduce", "figures", "ship",
+                                            "tune_baselines"]))
+def test_a_limit_too_small_to_load_torch_is_one_line_naming_it(tmp_path, app):
+    """``ulimit -v 307200`` (300 MiB): torch cannot map its libraries; one line naming the limit,
+    exit 2, as the other memory refusals, not an ImportError traceback."""
+    proc = script(f"{app}.py", f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path, timeout=120,
+                  preexec=limit_memory(300 / 1024))
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    one_line(proc.stderr, "starting the app needs more memory than its ulimit -v of 0.3 GiB lets this process map (")
+    assert proc.stderr.strip().endswith("; raise the limit")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -153,6 +153,40 @@ def test_a_second_signal_in_training_says_where_it_stopped_and_how_to_resume():
     assert "outside a training loop" in Stopped(signal.SIGTERM).message()
 
 
+# The child sends itself SIGINT from inside `import torch`, which every app reaches through its
+# imports: the signal lands where a Ctrl-C a second after the start lands, every time.
+INTERRUPT_IN_IMPORT = """
+import os, signal, sys
+
+class InterruptTorchsImport:
+    def find_spec(self, name, path=None, target=None):
+        if name == "torch":
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, InterruptTorchsImport())
+"""
+
+
+@pytest.mark.parametrize("app", first_fast(["evaluate", "diagnose", "scaling", "train", "reproduce", "figures", "ship",
+                                            "tune_baselines"]))
+def test_ctrl_c_while_an_app_imports_is_one_line_and_exit_130(tmp_path, app):
+    from flock_torchrl.cli import APPS
+
+    assert app in APPS
+    site, work = tmp_path / "site", tmp_path / "work"
+    site.mkdir()
+    work.mkdir()
+    (site / "sitecustomize.py").write_text(INTERRUPT_IN_IMPORT)
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / f"{app}.py")], cwd=work, capture_output=True,
+                          text=True, timeout=300, env=script_env(PYTHONPATH=f"{site}{os.pathsep}{ROOT}"))
+    assert proc.returncode == 130, proc.stderr[-3000:]
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()], proc.stderr[-3000:]
+    assert proc.stderr.startswith("stopped by SIGINT outside a training loop") and "Traceback" not in proc.stderr
+    assert list(work.iterdir()) == []  # it stopped before reading a config or making a folder
+
+
 # ---------------------------------------------------------------------------- 3: concurrent runs
 @pytest.mark.slow
 def test_a_second_process_on_the_same_folder_is_refused(tmp_path):

@@ -11,8 +11,9 @@
 
 * In an app, from its start to its run (:class:`AppSignals`, :data:`APP_SIGNALS`): signals
   are noted until the run is checked, then armed; a joblib sweep's parent waits for its jobs.
-  ``scripts/train.py`` notes signals while Python imports torch and the package (before this
-  module exists) and hands them to :meth:`AppSignals.start`.
+  Every script of ``scripts/`` notes signals while Python imports torch and the package (before
+  this module exists: ``scripts/_start.py``) and hands them to :meth:`AppSignals.start`; the app
+  then stops on one at once.
 """
 
 from __future__ import annotations

@@ -1,0 +1,60 @@
+"""How every app of scripts/ starts (not an app itself): ``start("evaluate")`` at the top of a script.
+
+Python takes seconds to load torch and the package, before ``flock_torchrl.cli`` exists. Here,
+first, with nothing but the standard library loaded:
+
+* a stop signal (Ctrl-C, SIGTERM, SIGHUP) is noted, not raised inside a library's import (a
+  ``KeyboardInterrupt`` traceback, or a library left half-built that fails later as another
+  error); the app stops on it in one line, exit 128 + the signal, before it reads or writes
+  anything (``flock_torchrl.cli.main``);
+* an import that fails under the process's own memory limit (``ulimit -v`` / ``ulimit -d``: torch
+  cannot map its libraries) is one ``error:`` line naming the limit, exit 2, as the apps'
+  other memory refusals (``flock_torchrl/world/memory.py``) are.
+"""
+
+import signal
+import sys
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
+
+
+def address_limit() -> str | None:
+    """The process's address-space or data limit in words (``ulimit -v of 300 MiB``); ``None``: none."""
+    import resource
+
+    limits = []
+    for name, which in (("ulimit -v", "RLIMIT_AS"), ("ulimit -d", "RLIMIT_DATA")):
+        soft = resource.getrlimit(getattr(resource, which))[0] if hasattr(resource, which) else resource.RLIM_INFINITY
+        if soft != resource.RLIM_INFINITY:
+            limits.append((soft, name))
+    if not limits:
+        return None
+    soft, name = min(limits)
+    size = f"{soft / 2**30:.1f} GiB" if soft >= 2**30 / 10 else f"{soft / 2**20:.0f} MiB"
+    return f"{name} of {size}"
+
+
+def out_of_memory(exc: BaseException) -> str | None:
+    """Why loading the app failed, in one line, when the process's memory limit is the cause
+    (``None``: another failure, left to its traceback)."""
+    limit = address_limit()
+    if limit is None or isinstance(exc, ModuleNotFoundError) or not isinstance(exc, (ImportError, MemoryError, OSError)):
+        return None
+    why = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return f"error: starting the app needs more memory than its {limit} lets this process map ({why}); raise the limit"
+
+
+def start(app: str) -> None:
+    """Run the Hydra app ``app`` (``flock_torchrl.cli.main``) on ``sys.argv``."""
+    noted: list[int] = []
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, lambda signum, frame: noted.append(signum))
+    try:
+        from flock_torchrl.cli import main
+    except (ImportError, MemoryError, OSError) as exc:
+        line = out_of_memory(exc)
+        if line is None:
+            raise
+        sys.stderr.write(line + "\n")
+        raise SystemExit(2) from None
+    main(app, noted)
