@@ -38,8 +38,8 @@ from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, Figures
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
 from .config.apps import DiagnoseConfig
 from .config.compose import check_boolean_overrides
-from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_writable, check_yaml_files,
-                     composed_yaml_files, config_folders, sweep_direction, sweep_jobs)
+from .prerun import (AppError, blame, check_launcher, check_resume_folder, check_trained_dims, check_writable,
+                     check_yaml_files, composed_yaml_files, config_folders, sweep_direction, sweep_jobs)
 
 EXIT_ERROR = 2
 # The resolvers and schemas the apps' YAMLs use, registered when the apps are imported: a
@@ -114,13 +114,15 @@ def _run_train(cfg: TrainConfig, out: Path) -> float:
 
 # -- evaluate
 def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
-    from .run.evaluation import check_evaluation
+    from .run.evaluation import check_evaluation, evaluated_handles
     from .world.memory import check_episodes_memory
     from .world.spawn import check_spawn_feasible
 
     check_spawn_feasible(cfg.scenario)
     check_episodes_memory(cfg.scenario, cfg.episodes)
     check_evaluation(cfg)
+    if cfg.contender is None:  # a contender's checkpoint met a real env in check_evaluation
+        check_trained_dims(evaluated_handles(cfg), cfg.scenario)
 
 
 def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
@@ -168,7 +170,7 @@ def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
 
     check_episodes_memory(dataclasses.replace(cfg.scenario, n_uavs=max(cfg.sizes)), cfg.episodes)
     for policy in (cfg.policy_name, *cfg.others):
-        resolve(policy, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device)
+        check_trained_dims(resolve(policy, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device), cfg.scenario)
 
 
 def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
@@ -229,9 +231,15 @@ def _run_tune(cfg: TuneConfig, out: Path) -> None:
 
 # -- diagnose
 def _prepare_diagnose(cfg: Any, out: Path) -> None:
-    from .report.diagnosis import check_diagnosis
+    from .config import scenario_config
+    from .policies.registry import resolve
+    from .report.diagnosis import check_diagnosis, diagnosed_checkpoints
 
     check_diagnosis(cfg)
+    handles = [h for paths in diagnosed_checkpoints(cfg).values() for p in paths
+               for h in resolve(p, cfg.scenario.reading, device=cfg.device)[:1]]  # the one diagnose flies
+    for name in cfg.scenarios:
+        check_trained_dims(handles, scenario_config(name, reading=cfg.scenario.reading), "scenarios", f"{name}'s ")
 
 
 def _run_diagnose(cfg: Any, out: Path) -> None:

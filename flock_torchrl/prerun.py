@@ -112,6 +112,25 @@ def source_of(config: DictConfig, key: str) -> str | None:
 
 
 
+def check_trained_dims(handles: Any, scenario: Any, key: str = "scenario.dims", where: str = "") -> None:
+    """Each checkpoint of ``handles`` flies in ``scenario``'s dimension (docs/specification.md
+    section 11), checked before any folder exists: the registry's own check, the one building a
+    checkpoint's module for an env makes, asked of a stand-in env that has only the scenario.
+    Rule-based policies and a contender's factory fit either dimension; ``key`` and ``where`` name
+    the setting that chose the scenario when it is not ``scenario`` itself."""
+    from types import SimpleNamespace
+
+    env = SimpleNamespace(cfg=scenario)
+    for handle in handles:
+        if handle.kind == "learned" or (handle.kind == "contender" and Path(handle.origin).is_file()):
+            try:
+                handle.build_for(env)
+            except ConfigError as exc:
+                if exc.key == key:
+                    raise
+                raise ConfigError(key, f"{where}{exc.key} {exc.message}") from None
+
+
 def check_resume_folder(config: DictConfig) -> None:
     """A ``resume.yaml`` written before run folders could move names its folder by its absolute
     path: read from a copy or a moved folder, it would continue (or miss) the original."""
@@ -364,5 +383,5 @@ def check_yaml_files(paths: list[Path]) -> None:
             raise AppError(f"{path} cannot be read ({type(exc).__name__}: {exc})") from None
 
 
-__all__ = ["AppError", "OBJECTIVE_DIRECTIONS", "blame", "check_launcher", "check_resume_folder", "check_writable",
-           "check_yaml_files", "composed_yaml_files", "config_folders", "sweep_direction", "sweep_jobs"]
+__all__ = ["AppError", "OBJECTIVE_DIRECTIONS", "blame", "check_launcher", "check_resume_folder", "check_trained_dims",
+           "check_writable", "check_yaml_files", "composed_yaml_files", "config_folders", "sweep_direction", "sweep_jobs"]

@@ -461,6 +461,64 @@ def test_evaluate_refuses_a_crafted_checkpoint_in_one_line(tmp_path, how):
     assert not (tmp_path / "out").exists()
 
 
+THREED = ROOT / "checkpoints" / "paper_fit" / "threed" / "policy3_g" / "seed0.pt"
+
+
+def mixed_dims_checkpoints(root: Path) -> Path:
+    """A checkpoints folder whose policy3_g seed1.pt is a 3-D checkpoint among 2-D ones."""
+    folder = root / "paper_fit" / "policy3_g"
+    folder.mkdir(parents=True)
+    for k in (0, 2):
+        shutil.copy(SHIPPED.parent / f"seed{k}.pt", folder / f"seed{k}.pt")
+    shutil.copy(THREED, folder / "seed1.pt")
+    return root
+
+
+# The probe's six cases: the refusal's start, and the checkpoint it names.
+DIMS_MISMATCHES = {
+    "2-D on train3d": ("evaluate.py", [f"checkpoint={SHIPPED}", "scenario=train3d"],
+                       f"scenario.dims: is 3 here, but {SHIPPED} was trained in a world with dims 2"),
+    "3-D on train": ("evaluate.py", [f"checkpoint={THREED}", "scenario=train"],
+                     f"scenario.dims: is 2 here, but {THREED} was trained in a world with dims 3"),
+    "3-D, no scenario": ("evaluate.py", [f"checkpoint={THREED}"],
+                         f"scenario.dims: is 2 here, but {THREED} was trained in a world with dims 3"),
+    "scaling others": ("scaling.py", [f"others=[{THREED}]", "sizes=[5]"],
+                       f"scenario.dims: is 2 here, but {THREED} was trained in a world with dims 3"),
+    "diagnose train3d": ("diagnose.py", ["scenarios=[train3d]", "policies=[policy3_g]", "sizes=[5]", "variants=[paper]"],
+                         f"scenarios: train3d's scenario.dims is 3 here, but {SHIPPED} was trained in a world with dims 2"),
+    "diagnose 3-D seed1": ("diagnose.py", ["checkpoints_dir={mixed}", "policies=[policy3_g]", "scenarios=[train]",
+                                           "sizes=[5]", "variants=[paper]"],
+                           "scenarios: train's scenario.dims is 2 here, but {mixed}/paper_fit/policy3_g/seed1.pt was "
+                           "trained in a world with dims 3"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DIMS_MISMATCHES))
+@pytest.mark.slow
+def test_a_checkpoint_of_the_other_dimension_is_refused_before_any_folder(tmp_path, case):
+    app, args, start = DIMS_MISMATCHES[case]
+    mixed = mixed_dims_checkpoints(tmp_path / "mixed") if "{mixed}" in start else None
+    proc = script(app, *(a.format(mixed=mixed) for a in args), "episodes=2", f"hydra.run.dir={tmp_path / 'out'}",
+                  cwd=tmp_path, timeout=180)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    one_line(proc.stderr, start.format(mixed=mixed))
+    assert not (tmp_path / "out").exists()  # refused by the pre-run check, before Hydra made the folder
+
+
+def test_the_pre_run_check_refuses_a_checkpoint_of_the_other_dimension(tmp_path):
+    """What PreRunCheck calls (cli.checked) reads the checkpoint's dimension: no folder yet."""
+    from flock_torchrl.cli import checked
+    from flock_torchrl.config import ConfigError, compose
+
+    cfg = compose("evaluate", [f"checkpoint={THREED}", "scenario=train", "episodes=2"])
+    with pytest.raises(ConfigError, match=rf"^scenario\.dims: is 2 here, but {THREED} was trained in a world with "
+                                          r"dims 3: evaluate it on a 3-D scenario"):
+        checked("evaluate", cfg, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    assert checked("evaluate", compose("evaluate", [f"checkpoint={THREED}", "scenario=train3d", "episodes=2"]),
+                   tmp_path / "out").scenario.dims == 3  # its own dimension passes
+
+
 # ---------------------------------------------------------------------------- 8: env API
 @pytest.mark.parametrize("scenario", ["s1", "s5", "forest"])
 def test_set_state_refuses_a_non_finite_state_and_takes_a_finite_one(scenario):
