@@ -342,35 +342,48 @@ def write_claims(seeds_csv: str | Path, destination: str | Path) -> Path:
             "Each comparison is P(X > Y) over the seeds' scores (ties half) and the difference of their means, "
             f"each with a 95 % percentile bootstrap interval ({RESAMPLES} resamples, scipy.stats.bootstrap); the "
             "verdict follows docs/specification.md section 10 (both intervals clear their thresholds: 0.5, and "
-            "the metric's smallest difference that matters). Written by `python -m flock_torchrl.report.seeds`.\n\n"
+            "the metric's smallest difference that matters). Written by `make publish-claims`.\n\n"
             + claims_table(seeds_csv)
             + "\n## Per policy, over seeds\n\nIntervals: percentile bootstrap over seeds, as above; a single "
             "seed has no interval (its value twice).\n\n" + summary_table(seeds_csv))
     return write_text(destination, text)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    """``python -m flock_torchrl.report.seeds <table_seeds.csv> <claims.md> [<profile.png>]``."""
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m flock_torchrl.report.seeds <table_seeds.csv> <claims.md> [<profile.png>]`` (or
+    ``--overview <out.md> <title>=<seeds.csv> ...``): the files land together or not at all; a bad input is
+    one ``error:`` line (exit status 2). ``make publish-claims`` writes them all for every published table."""
     import sys
 
+    from ..run.publication import Publication, PublishError, entry
+
     args = list(sys.argv[1:] if argv is None else argv)
-    if args[:1] == ["--overview"]:   # --overview <out.md> <title>=<seeds.csv> ...
-        if len(args) < 3 or any("=" not in a for a in args[2:]):
-            raise SystemExit("usage: python -m flock_torchrl.report.seeds --overview <out.md> <title>=<seeds.csv> ...")
-        print(f"wrote {write_overview(dict(a.split('=', 1) for a in args[2:]), args[1])}")
-        return
-    if len(args) not in (2, 3):
-        raise SystemExit("usage: python -m flock_torchrl.report.seeds <table3_seeds.csv> <claims_over_seeds.md> "
-                         "[<performance_profile.png>]")
-    if not Path(args[0]).is_file():
-        raise SystemExit(f"error: no seeds table at {args[0]}")
-    print(f"wrote {write_claims(*args[:2])}")
-    if len(args) == 3:
-        print(f"wrote {plot_profiles(args[0], args[2])}")
+
+    def run() -> None:
+        if args[:1] == ["--overview"]:   # --overview <out.md> <title>=<seeds.csv> ...
+            if len(args) < 3 or any("=" not in a for a in args[2:]):
+                raise PublishError("usage: python -m flock_torchrl.report.seeds --overview <out.md> <title>=<seeds.csv> ...")
+            with Publication("the claims overview", [args[1]]) as pub:
+                write_overview(dict(a.split("=", 1) for a in args[2:]), pub.staged(args[1]))
+            print(f"wrote {args[1]}")
+            return
+        if len(args) not in (2, 3):
+            raise PublishError("usage: python -m flock_torchrl.report.seeds <table3_seeds.csv> <claims_over_seeds.md> "
+                               "[<performance_profile.png>]")
+        if not Path(args[0]).is_file():
+            raise PublishError(f"no seeds table at {args[0]}")
+        with Publication("the claims over seeds", args[1:]) as pub:
+            write_claims(args[0], pub.staged(args[1]))
+            if len(args) == 3:
+                plot_profiles(args[0], pub.staged(args[2]))
+        for path in args[1:]:
+            print(f"wrote {path}")
+
+    return entry(run)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
 
 
 __all__ = ["SMALLEST_DIFFERENCE", "Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_overview",

@@ -20,6 +20,7 @@ import re
 import sys
 import textwrap
 from pathlib import Path
+from typing import Sequence
 
 from ..config import ConfigError
 from ..io import write_text
@@ -52,11 +53,18 @@ def blocks(text: str) -> list[tuple[str, int, int]]:
     return found
 
 
-def splice_text(text: str, root: str | Path, where: str = "document") -> str:
-    """``text`` with every block replaced by its file's :func:`quoted` text."""
+def _source(path: str, roots: str | Path | Sequence[str | Path]) -> Path:
+    """``path`` under the first of ``roots`` that holds it (a publication's stage, then the repository)."""
+    roots = [roots] if isinstance(roots, (str, Path)) else list(roots)
+    return next((Path(r) / path for r in roots if (Path(r) / path).is_file()), Path(roots[-1]) / path)
+
+
+def splice_text(text: str, root: str | Path | Sequence[str | Path], where: str = "document") -> str:
+    """``text`` with every block replaced by its file's :func:`quoted` text; ``root``: the folder the
+    blocks' paths are relative to, or several, the first that holds a file giving it."""
     out, last = [], 0
     for path, start, end in blocks(text):
-        source = Path(root) / path
+        source = _source(path, root)
         if not source.is_file():
             raise ConfigError("splice", f"{where}: the block '<!-- splice: {path} -->' names {source}, which does not "
                                         "exist (run the make target that writes it first)")
@@ -76,6 +84,22 @@ def splice_file(document: str | Path, root: str | Path | None = None) -> list[st
     changed = stale_blocks(document, root) if new != text else []
     if new != text:
         write_text(document, new)
+    return changed
+
+
+def splice_staged(publication, documents: Sequence[str | Path] | None = None) -> list[str]:
+    """A publication's ``refresh``: each of its documents (or ``documents``) read from the
+    repository as it is now, its blocks spliced from the staged files (those the publication did
+    not write from the repository), written into the stage where that changes it. Returns the
+    documents that change."""
+    changed = []
+    for document in (publication.documents if documents is None else documents):
+        live = Path(document).absolute()
+        text = live.read_text()
+        new = splice_text(text, [publication.stage, publication.root], str(live.relative_to(publication.root)))
+        if new != text:
+            write_text(publication.staged(live), new)
+            changed.append(live.relative_to(publication.root).as_posix())
     return changed
 
 
@@ -244,14 +268,22 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --demo: {exc}", file=sys.stderr)
             return 2
         return 0
-    for document in args:
-        try:
-            changed = splice_file(document)
-        except (ConfigError, OSError) as exc:
-            print(f"error: {document}: {exc}", file=sys.stderr)
-            return 2
-        print(f"{document}: " + (f"spliced {', '.join(changed)}" if changed else "every block current"))
-    return 0
+    from ..run.publication import Publication, entry
+
+    def splice_all() -> None:   # the documents land together, or none does
+        for document in args:
+            if not Path(document).is_file():
+                raise ConfigError("splice", f"{document}: no such document")
+            if _repository(Path(document)) != Path.cwd().resolve():
+                raise ConfigError("splice", f"{document}: run this from the root of its repository (the blocks' "
+                                            "paths are relative to it)")
+        with Publication("the spliced documents", [], documents=args, refresh=splice_staged, log=print) as pub:
+            pass
+        for document in args:
+            name = Path(document).absolute().relative_to(pub.root).as_posix()
+            print(f"{document}: " + ("spliced" if name in pub.landed else "every block current"))
+
+    return entry(splice_all)
 
 
 if __name__ == "__main__":

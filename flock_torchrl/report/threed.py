@@ -1,6 +1,7 @@
 """The 3-D table in the form of Table III (docs/specification.md section 11): every policy on every
 3-D scenario, from the ``summary.json`` files ``scripts/evaluate.py`` wrote (one per policy, seed
-and scenario; ``make table3-3d`` lays them out as ``<folder>/<policy>/<seed>/<scenario>/``).
+and scenario, laid out as ``<folder>/<policy>/<seed>/<scenario>/``); and the published table
+(:func:`publish`: ``make publish-threed``, ``make table3-3d``) with section 11's verdicts.
 
 A cell is the mean over the policy's seeds of each seed's episode mean, with the spread over seeds
 (standard deviation; a single seed shows its episodes' standard deviation instead, marked ``e``).
@@ -146,8 +147,9 @@ def episode_frame(path: str | os.PathLike, policy: str, scenario: str = "wall3d"
     height, width = image_size(size)
     extent = world_extent(env.cfg, states)
     steps = [min(len(states) - 1, int(round(a * (len(states) - 1)))) for a in at]
+    name = handle.name if handle.seed is None else f"{handle.name} (seed {handle.seed})"
     image = np.concatenate([frame_image(env.cfg, states[t], extent, height, width, True,
-                                        f"{handle.name} on {scenario}, t = {t * env.cfg.dt:.1f} s") for t in steps])
+                                        f"{name} on {scenario}, t = {t * env.cfg.dt:.1f} s") for t in steps])
     return atomic_write(path, lambda tmp: imageio.imwrite(tmp, image, format="PNG"))
 
 
@@ -175,7 +177,7 @@ def seed_rows(policies: Sequence[str], reading: str, scenarios: Sequence[str] = 
             result = evaluate_handle(handle, scenario, reading, episodes, seed, device)
             rows.append({"scenario": scenario, "policy": handle.name, "checkpoint": shown(handle.origin),
                          **result.summary(),
-                         "wall_time_s": round(result.wall_time_s, 2)})
+                         "wall_time_s": round(result.wall_time_s, 2), "seed": handle.seed})
             log(f"[{len(rows)}/{len(handles) * len(scenarios)}] {result}")
     return rows
 
@@ -309,46 +311,102 @@ def publish_table(rows: Sequence[dict[str, Any]], out_dir: str | os.PathLike, co
             write_text(out / "table3_3d_brief.md", brief_markdown(rows))]
 
 
+def representative(rows: Sequence[dict[str, Any]], policy: str, scenario: str,
+                   metric: str = "success_rate") -> dict[str, Any] | None:
+    """The row of ``policy``'s seed whose ``metric`` on ``scenario`` is the median of its seeds' (for an even
+    count, the lower of the two middle ones; equal scores in the order of the seeds): the seed a figure
+    shows, typical rather than the best or the worst. ``None`` when ``policy`` has no row there."""
+    mine = [r for r in rows if r["policy"] == policy and r["scenario"] == scenario]
+    if not mine:
+        return None
+    mine.sort(key=lambda r: (float(r[metric]), -1 if r.get("seed") is None else int(r["seed"]), str(r["checkpoint"])))
+    return mine[(len(mine) - 1) // 2]
+
+
+def figures_markdown(rows: Sequence[dict[str, Any]], shown: dict[str, dict[str, Any]], baseline: str,
+                     frames: str | None, metric: str = "success_rate") -> str:
+    """``threed_figures.md``: which seed each figure shows, and why."""
+    policy = next(iter(shown.values()))["policy"] if shown else FIRST
+    lines = ["# The 3-D figures", "",
+             f"`threed_<scenario>_<policy>.gif`: one seeded episode (evaluation seed 2024, deterministic actions) of "
+             f"{baseline} and of one seed of {policy} on each 3-D scenario, a top view (left) and a side view in the "
+             "vertical plane through the area's centre and the goal (right)"
+             + (f"; `threed_{frames}_frames.png`: that seed's episode on {frames} at its start, half-way and its end"
+                if frames in shown else "")
+             + f". The seed shown on a scenario is the one whose {metric.replace('_', ' ')} there is the median of "
+             f"the seeds' (the lower middle one for an even count; `flock_torchrl.report.threed.representative`): a "
+             "typical seed, neither the best nor the worst.", "",
+             f"| scenario | {policy}'s seed shown | its {metric.replace('_', ' ')} | every seed's |", "|---|---|---|---|"]
+    for scenario, row in shown.items():
+        seeds = sorted((r for r in rows if r["policy"] == row["policy"] and r["scenario"] == scenario),
+                       key=lambda r: -1 if r.get("seed") is None else int(r["seed"]))
+        every = ", ".join(f"{r.get('seed')}: {100 * float(r[metric]):.1f} %" for r in seeds)
+        lines.append(f"| {scenario} | {row.get('seed')} | {100 * float(row[metric]):.1f} % | {every} |")
+    return "\n".join(lines) + "\n"
+
+
 def publish(checkpoints: Sequence[str], results: str | os.PathLike, figures: str | os.PathLike, reading: str,
             episodes: int, command: str, baselines: Sequence[str] = ("policy_ma", "policy_op"),
             scenarios: Sequence[str] = SCENARIOS, gif_size: tuple[int, int] = (300, 600), gif_stride: int = 5,
-            log: Callable[[str], None] = print) -> list[Path]:
-    """``make publish-threed``'s table, GIFs and frame: every checkpoint of ``checkpoints`` and each of
-    ``baselines`` on ``scenarios`` (:func:`publish_table` into ``results``); one seeded episode of Policy-OP and
-    of Policy3-G's first checkpoint on each scenario as a GIF (``threed_<scenario>_<policy>.gif``), and that
-    checkpoint's episode on wall3d at its start, half-way and its end as ``threed_wall3d_frames.png``, into ``figures``."""
+            shown: str = FIRST, frames: str | None = "wall3d", log: Callable[[str], None] = print) -> list[Path]:
+    """``make publish-threed``'s table, GIFs and frames: every checkpoint of ``checkpoints`` and each of
+    ``baselines`` on ``scenarios`` (:func:`publish_table` into ``results``); on each scenario, one seeded episode
+    of the last baseline and of ``shown``'s :func:`representative` seed there as a GIF
+    (``threed_<scenario>_<policy>.gif``), and on ``frames`` that seed's episode at its start, half-way and its
+    end as ``threed_<frames>_frames.png``, into ``figures``; which seed each shows, ``threed_figures.md`` in
+    ``results``. A table without ``shown`` shows the first checkpoint."""
     if not checkpoints:
         raise FileNotFoundError("no 3-D checkpoint to publish (make ship-threed ships them)")
     rows = seed_rows([*checkpoints, *baselines], reading, scenarios, episodes, log=log)
     paths = publish_table(rows, results, command)
-    first = next((r["checkpoint"] for r in rows if r["policy"] == FIRST), checkpoints[0])   # Policy3-G's first seed
-    for policy in (baselines[-1], first):
-        paths += episode_gifs(figures, policy, scenarios, reading, size=gif_size, stride=gif_stride, prefix="threed_")
-    if "wall3d" in scenarios:
-        paths.append(episode_frame(Path(figures) / "threed_wall3d_frames.png", first, "wall3d", reading))
+    chosen = {scenario: representative(rows, shown, scenario) or representative(rows, rows[0]["policy"], scenario)
+              for scenario in scenarios}
+    for scenario in scenarios:
+        for policy in (baselines[-1], chosen[scenario]["checkpoint"]):
+            paths += episode_gifs(figures, policy, [scenario], reading, size=gif_size, stride=gif_stride, prefix="threed_")
+        log(f"{scenario}: the GIF shows {chosen[scenario]['policy']} seed {chosen[scenario].get('seed')} "
+            f"({chosen[scenario]['checkpoint']}), the seed of median success there")
+    if frames in scenarios:
+        paths.append(episode_frame(Path(figures) / f"threed_{frames}_frames.png", chosen[frames]["checkpoint"], frames,
+                                   reading))
+    baseline = next((r["policy"] for r in rows if r["checkpoint"] == f"baseline:{baselines[-1]}"), baselines[-1])
+    paths.append(write_text(Path(results) / "threed_figures.md", figures_markdown(rows, chosen, baseline, frames)))
     for path in paths:
         log(f"wrote {path}")
     return paths
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    """``python -m flock_torchrl.report.threed <results> <figures> <reading> <episodes> <checkpoint.pt> ...``."""
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m flock_torchrl.report.threed <results> <figures> <reading> <episodes> <checkpoint.pt> ...``:
+    :func:`publish`, its table and figures landing together or not at all (a bad input: one ``error:`` line,
+    exit status 2; a stop signal: one line). ``make publish-threed`` runs it with the rest of the 3-D results."""
     import sys
 
+    from ..run.publication import Publication, PublishError, entry
+
     args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) < 4 or not args[3].isdigit() or int(args[3]) < 1:
-        raise SystemExit("usage: python -m flock_torchrl.report.threed <results dir> <figures dir> <reading> "
-                         "<episodes> <3-D checkpoint.pt> ...")
-    results, figures, reading, episodes, checkpoints = args[0], args[1], args[2], int(args[3]), args[4:]
-    missing = [c for c in checkpoints if not Path(c).is_file()]
-    if missing or not checkpoints:
-        raise SystemExit(f"error: no 3-D checkpoint at {missing or 'any path given'} (make ship-threed ships them)")
-    publish(checkpoints, results, figures, reading, episodes, command="make publish-threed")
+
+    def run() -> None:
+        if len(args) < 4 or not args[3].isdigit() or int(args[3]) < 1:
+            raise PublishError("usage: python -m flock_torchrl.report.threed <results dir> <figures dir> <reading> "
+                               "<episodes >= 1> <3-D checkpoint.pt> ...")
+        results, figures, reading, episodes, checkpoints = args[0], args[1], args[2], int(args[3]), args[4:]
+        missing = [c for c in checkpoints if not Path(c).is_file()]
+        if missing or not checkpoints:
+            raise PublishError(f"no 3-D checkpoint at {', '.join(missing) or 'any path given'} (make ship-threed ships them)")
+        from ..policies.checkpoint import load_checkpoint
+
+        for path in checkpoints:
+            load_checkpoint(path)   # a truncated or foreign file: one line, before any episode
+        with Publication("the 3-D table and figures", [results, figures]) as pub:
+            publish(checkpoints, pub.staged(results), pub.staged(figures), reading, episodes, command="make publish-threed")
+
+    return entry(run)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
 
 
-__all__ = ["COLUMNS", "SCENARIOS", "cells", "collect", "comparisons", "episode_frame", "episode_gifs", "markdown",
-           "pooled_rows", "publish", "publish_table", "seed_rows", "write_table"]
+__all__ = ["COLUMNS", "SCENARIOS", "cells", "collect", "comparisons", "episode_frame", "episode_gifs", "figures_markdown",
+           "markdown", "pooled_rows", "publish", "publish_table", "representative", "seed_rows", "write_table"]

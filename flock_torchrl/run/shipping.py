@@ -2,7 +2,9 @@
 
 Two collections per reading, each ``<collection>/<policy>/seed<k>.pt``: the fast recipe's
 (``<checkpoints_dir>/<reading>``) and the paper recipe's (``paper_recipe_dir``, by default
-``<checkpoints_dir>/<reading>/paper_recipe``), each with its ``MANIFEST.md``.
+``<checkpoints_dir>/<reading>/paper_recipe``), each with its ``MANIFEST.md``. A shipment lands whole
+or not at all (:class:`~.publication.Publication`): stopped at any moment, the collections and
+their manifests are the old ones or the new ones, never a mix.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from typing import Callable, Sequence
 
 from ..io import write_text
 from ..policies.checkpoint import LAST, CheckpointError, load_checkpoint, save_checkpoint, slim_payload
+from .publication import Publication
 from .schedule import Schedule
 
 
@@ -81,28 +84,34 @@ def plan_collection(runs: list[Run], dest: Path, reading: str) -> tuple[Shipment
 
 def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source: str,
                     log: Callable[[str], None] = print,
-                    made_by: str = "`make ship-checkpoints` (scripts/ship.py)") -> list[Path]:
+                    made_by: str = "`make ship-checkpoints` (scripts/ship.py)",
+                    publication: Publication | None = None) -> list[Path]:
     """Write the slim policies of a :func:`plan_collection` plan (found free of conflicts) to
     ``<dest>/<policy>/seed<k>.pt`` (files of the earlier flat layout, ``<dest>/<policy>_seed<k>.pt``,
-    move to their place) and ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds."""
+    move to their place) and ``<dest>/MANIFEST.md`` listing every checkpoint the collection holds: all
+    of them land together or none does (written into ``publication``'s stage, or into one of its own)."""
+    if publication is None:
+        with Publication(f"the checkpoints of {dest}", [dest], log=log) as pub:
+            return ship_collection(plan, dest, reading, title, source, log, made_by, pub)
+    staged = publication.staged
     shipped = []
     exported: dict[Path, dict] = {}
     for last, target, member, slim in plan:
-        save_checkpoint(slim, target, kind="policy")
+        save_checkpoint(slim, staged(target), kind="policy")
         log(f"{last} -> {target}" + ("" if member is None else f" (member {member})"))
         shipped.append(target)
-        exported[target] = slim
-    for legacy in sorted(dest.glob("*_seed*.pt")):
+        exported[staged(target)] = slim
+    for legacy in sorted(staged(dest).glob("*_seed*.pt")):
         policy, _, seed = legacy.stem.rpartition("_")
-        target = dest / policy / f"{seed}.pt"
+        target = legacy.parent / policy / f"{seed}.pt"
         if not target.exists():
             target.parent.mkdir(parents=True, exist_ok=True)
             legacy.replace(target)
-            log(f"{legacy} -> {target} (the collection's layout)")
+            log(f"{dest / legacy.name} -> {dest / policy / target.name} (the collection's layout)")
         else:
             legacy.unlink()
-            log(f"removed {legacy} (superseded by {target})")
-    held = sorted(dest.glob("*/seed*.pt"))
+            log(f"removed {dest / legacy.name} (superseded by {dest / policy / target.name})")
+    held = sorted(staged(dest).glob("*/seed*.pt"))
     if not held:
         return shipped
     lines = [f"# {title}, reading `{reading}`", "",
@@ -116,7 +125,7 @@ def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source
         lines.append(f"| {payload['meta']['policy']} | {path.stem[4:]} | {payload['meta']['experiment']} | {c['frames']} | "
                      f"{c['episodes']} | {c['updates']} | {c['seconds'] / 60:.1f} | "
                      f"{ev.get('success', float('nan')):.3f} | {ev.get('safe_success', float('nan')):.3f} |")
-    write_text(dest / "MANIFEST.md", "\n".join(lines) + "\n")
+    write_text(staged(dest) / "MANIFEST.md", "\n".join(lines) + "\n")
     log(f"wrote {dest / 'MANIFEST.md'} ({len(held)} checkpoints, {len(shipped)} exported now)")
     return shipped
 
@@ -132,7 +141,7 @@ def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, name
     if conflicts:
         raise CheckpointError(refusal(conflicts))
     return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log,
-                           made_by=f"`make ship-{dest.name}` (scripts/ship.py only={dest.name})")
+                           made_by=f"`make ship-{dest.name}` (scripts/ship.py only={dest.name})", publication=None)
 
 
 def refusal(conflicts: list[str]) -> str:
@@ -163,8 +172,9 @@ def ship_checkpoints(reading: str, experiment: str, runs_dir: Path, checkpoints_
     if conflicts:
         raise CheckpointError(refusal(conflicts))
     shipped = []
-    for plan, dest, title, source in plans:
-        shipped += ship_collection(plan, dest, reading, title, source, log)
+    with Publication(f"the shipped checkpoints ({reading})", [dest for _, dest, _ in collections_], log=log) as pub:
+        for plan, dest, title, source in plans:
+            shipped += ship_collection(plan, dest, reading, title, source, log, publication=pub)
     return shipped
 
 
