@@ -165,20 +165,6 @@ def test_splice_replaces_a_block_from_its_file_and_refuses_an_open_marker(tmp_pa
     assert doc.read_text() == "<!-- splice: results/summary.md -->\nno end\n"   # nothing half-written
 
 
-def test_publish_targets_refresh_the_docs_copies():
-    makefile = (ROOT / "Makefile").read_text()
-    for target in ("publish", "publish-paper-recipe", "publish-scaling", "publish-threed"):
-        body = makefile.split(f"\n{target}:", 1)[1].split("\n\n", 1)[0]
-        assert "$(MAKE) --no-print-directory docs" in body, target
-    docs = makefile.split("\ndocs:", 1)[1].split("\n\n", 1)[0]
-    assert "flock_torchrl.report.splice docs/results.md README.md" in docs
-    assert "flock_torchrl.report.splice docs/threed.md" in docs
-    demo = makefile.split("\nreadme-demo:", 1)[1].split("\n\n", 1)[0]
-    assert "experiment=demo" in demo and "--demo" in demo and "splice README.md" in demo
-    assert "5, 20 and 50 UAVs" in makefile and "5, 9 and 20 UAVs" not in makefile
-    assert "about two minutes" not in (ROOT / "conf" / "experiment" / "demo.yaml").read_text()
-
-
 def test_demo_lines_keep_the_checkpoint_and_evaluation_lines(tmp_path):
     from flock_torchrl.config import ConfigError
     from flock_torchrl.report.splice import demo_lines, write_demo
