@@ -89,7 +89,9 @@ def test_where_it_stands_is_written_from_results():
     paper_fit = (ROOT / "results" / "paper_fit" / "summary.md").read_text()
     row = re.search(r"^\| Policy3-G \| [\d.]+ / [\d.]+ \| ([\d.]+) \| ([\d.]+) / ([\d.]+) \|", paper_fit, re.M)
     safe, ours, paper = row.groups()
-    assert f"closest pair {ours} m (paper {paper} m), {safe} % of episodes" in table
+    # the safe success rate, said as what it is (a lower bound on the episodes without a close pair)
+    assert f"closest pair {ours} m (paper {paper} m), safe success {safe} % (the goal reached with no pair ever " \
+           "within 0.5 m)" in table
 
 
 def test_standing_pools_the_scaling_seeds_beside_olfati_saber(tmp_path):
@@ -327,6 +329,12 @@ def test_readmes_python_api_block_runs(tmp_path):
                           env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "torch.Size([64, 100, 5, 17])" in proc.stdout and "Policy3-G on s2" in proc.stdout
+    # The baselines' rollout runs its 500 steps (without break_when_any_done=False it stopped at the
+    # first world's done, step 138), and every comment that quotes a shape quotes the printed one.
+    assert "torch.Size([8, 500, 1])" in proc.stdout
+    quoted = re.findall(r"^print\(.*\)\s+# (\[[\d, ]+\])", block, flags=re.M)
+    printed = re.findall(r"^torch\.Size\((\[[\d, ]+\])\)$", proc.stdout, flags=re.M)
+    assert quoted == printed and len(quoted) == 2, (quoted, printed)
     assert "\x1b[" not in proc.stdout + proc.stderr   # no ANSI-coloured log line
 
 
@@ -884,3 +892,52 @@ def test_usage_regenerates_the_shipped_seeds_as_they_were_trained():
     readme = " ".join(README.read_text().split())
     assert "under `paper_fit` the off-policy ones' ten trained as one population per policy" in readme
     assert "under `literal` seeds 0-2 as solo runs and 3-9 as one population of seven" in readme
+
+
+# ---------------------------------------------------------------------------- issue 53
+def test_readmes_api_block_lets_every_rollout_run_its_steps():
+    """Every rollout of README's API block passes break_when_any_done=False: its last one, the
+    baselines', stopped at step 138 when the first of its 8 worlds finished."""
+    block = README.read_text().split("## Programmatic API", 1)[1].split("```", 2)[1]
+    calls = re.findall(r"\.rollout\(([^\n]*)\)", block)
+    assert len(calls) >= 3 and all("break_when_any_done=False" in call for call in calls), calls
+
+
+def test_readme_and_usage_quote_the_shipped_checkpoints_size():
+    """The wheel carries checkpoints/ (its *.pt and *.md, pyproject's package data): README and
+    docs/usage.md quote its size to 0.1 MB ("about 44 MB" was 41.5)."""
+    size = sum(p.stat().st_size for p in (ROOT / "checkpoints").rglob("*") if p.suffix in (".pt", ".md"))
+    quoted = f"{size / 1e6:.1f} MB"
+    for doc in (README, ROOT / "docs" / "usage.md"):
+        text = " ".join(doc.read_text().split())
+        assert f"the shipped checkpoints ({quoted}" in text or f"the whole set is {quoted}" in text, (doc.name, quoted)
+        assert "44 MB" not in text
+
+
+def test_the_paper_recipe_compiles_unless_asked_otherwise_and_a_run_keeps_its_compile():
+    """experiment=paper composes compile=true (what --cfg job prints and the run uses), as the
+    shipped paper-recipe runs were trained; compile=false is its eager twin; the other recipes stay
+    eager; a resume refuses another compile than its run's (a recipe's default may change under a
+    run), and a run's folder does not name it."""
+    from flock_torchrl.config import ConfigError, compose
+    from flock_torchrl.policies.checkpoint import load_checkpoint
+    from flock_torchrl.run.setup import config_differences, make_train_config
+
+    paper = make_train_config("policy3_g", "paper")
+    assert paper.compile is True and paper.experiment.name == "paper"
+    assert make_train_config("policy3_g", "paper", ["compile=false"]).compile is False
+    for experiment in ("fast", "demo", "mixed", "tiny"):
+        assert make_train_config("policy3_g", experiment).compile is False, experiment
+    for path in sorted((ROOT / "checkpoints" / "paper_fit" / "paper_recipe").glob("*/seed*.pt")):
+        saved = load_checkpoint(path)["config"]
+        assert saved["experiment"]["name"] == "paper" and saved["compile"] is True, path
+    resolved = OmegaConf.to_container(paper, resolve=True)
+    assert "compile" not in resolved["resumable"]
+    assert config_differences({**resolved, "compile": False}, resolved, resolved["resumable"]) == ["compile"]
+    assert "compile" in compose("train", ["experiment=paper"], return_hydra_config=True).hydra.job.config \
+        .override_dirname.exclude_keys
+    with pytest.raises(ConfigError) as info:
+        from flock_torchrl.config import TrainConfig
+
+        TrainConfig.from_config(make_train_config("policy3_g", "paper", ["population=2"]))
+    assert info.value.key == "population" and "compile=false or compile=step" in str(info.value)

@@ -82,7 +82,8 @@ def instinct_row(results: Path) -> str:
     (verdict,) = _verdicts(results / "paper_fit" / "table3_seeds.csv", [INSTINCT_CLAIM])
     return (f"| the instinct keeps UAVs apart (the paper's central claim) | {verdict} over seeds under `paper_fit`: "
             f"Policy3-G's closest pair {float(p3g['d_min_uav']):.3f} m (paper {float(p3g['d_min_uav_paper']):.3f} m), "
-            f"{_pct(float(p3g['safe_success_rate']))} % of episodes without a pair within 0.5 m; without the "
+            f"safe success {_pct(float(p3g['safe_success_rate']))} % (the goal reached with no pair ever within 0.5 m); "
+            f"without the "
             f"instinct {min(without):.3f}-{max(without):.3f} m |")
 
 
