@@ -384,8 +384,7 @@ def make_policy(policy: Any, env: Any, device: str | None = None) -> Module:
 
             algo = compose_world("train", env.cfg.reading, config.id).algo
             return make_actor(env, stochastic=algo.name != "ddpg", hidden=algo.hidden, depth=algo.depth)
-    (handle,) = resolve(policy, env.cfg.reading, device=str(env.device if device is None else device),
-                        dims=env.cfg.dims)[:1]
+    (handle,) = resolve(policy, env.cfg.reading, device=str(env.device if device is None else device))[:1]
     return handle.build(env)
 
 
