@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, run_script
+from helpers import ROOT, first_fast, run_script
 
 from flock_torchrl.run.publication import FAULT, FOLDER, Publication, PublishError, entry, recover
 
@@ -349,22 +349,7 @@ def stopped_at_several_writes(tmp_path, monkeypatch, capsys, make, publish, poin
     return outcomes
 
 
-@pytest.mark.slow   # the documents' step alone: no evaluation (~5 s a run)
-def test_docs_lands_whole_or_not_at_all(tmp_path, monkeypatch, capsys):
-    from flock_torchrl.report.publish import docs, settings
-
-    def make(root):
-        sandbox(root)
-        brief = root / "results" / "paper_fit" / "table3_3d_brief.md"
-        brief.write_text(brief.read_text().replace("| wall3d |", "| wall3d (changed) |"))
-        (root / "results" / "paper_fit" / "scaling_pooled.md").write_text("# stale\n")
-        return root
-
-    stopped_at_several_writes(tmp_path, monkeypatch, capsys, make, lambda: docs(settings()),
-                              points=("first", "staged", "journal", "landing"))
-
-
-@pytest.mark.slow   # one 3-D checkpoint and one baseline, one episode on wall3d, tiny GIFs, one swarm size (~40 s a run)
+@pytest.mark.slow   # one 3-D checkpoint and one baseline, one episode on wall3d, tiny GIFs, one swarm size (~60 s a run)
 def test_publish_threed_lands_whole_or_not_at_all(tmp_path, monkeypatch, capsys):
     from flock_torchrl.report.publish import publish_threed, settings
 
@@ -374,7 +359,7 @@ def test_publish_threed_lands_whole_or_not_at_all(tmp_path, monkeypatch, capsys)
             "threed.scaling.0.others=[]"]
     stopped_at_several_writes(tmp_path, monkeypatch, capsys,
                               lambda root: sandbox(root, {"paper_fit/threed/policy3_g": ["seed0.pt"]}),
-                              lambda: publish_threed(settings(tiny)), points=("first", "staged", "landing"))
+                              lambda: publish_threed(settings(tiny)), points=("middle", "staged"))
 
 
 @pytest.mark.slow   # Table V from one seed, Fig. 4, one swarm size, the claims (~40 s a run)
@@ -442,7 +427,7 @@ def test_the_demos_lines_and_readme_land_together(tmp_path, monkeypatch, capsys)
     stopped_at_several_writes(tmp_path, monkeypatch, capsys, make, publish, points=("first", "staged", "landing"))
 
 
-@pytest.mark.slow   # two tiny trainings, then their shipment stopped at several writes
+@pytest.mark.slow   # two tiny trainings, then their shipments (ship-checkpoints', ship-threed's) stopped at several writes
 def test_ship_lands_the_collection_and_its_manifest_whole_or_not_at_all(tmp_path, monkeypatch, capsys):
     from flock_torchrl.run.launch import train
     from flock_torchrl.run.shipping import ship_checkpoints
@@ -468,6 +453,23 @@ def test_ship_lands_the_collection_and_its_manifest_whole_or_not_at_all(tmp_path
                          log=print)
 
     stopped_at_several_writes(tmp_path / "ship", monkeypatch, capsys, make, ship, points=("first", "staged", "landing"))
+    # make ship-threed's collection (runs of another scenario, named by their override), alone
+    from flock_torchrl.run.shipping import ship_scenario_collection
+
+    for seed in (0, 1):
+        shutil.copytree(runs / "tiny" / "paper_fit" / "policy3_g" / f"seed{seed}",
+                        tmp_path / "runs3" / "tiny" / "paper_fit" / "policy3_g" / f"seed{seed}__scenario-train")
+
+    def make3(root):
+        dest = root / "checkpoints" / "paper_fit" / "threed"
+        shutil.copytree(ROOT / "checkpoints" / "paper_fit" / "threed", dest)
+        return root
+
+    def ship3():
+        ship_scenario_collection("paper_fit", tmp_path / "runs3", "tiny", ["scenario-train"],
+                                 Path("checkpoints/paper_fit/threed"), log=print)
+
+    stopped_at_several_writes(tmp_path / "ship3", monkeypatch, capsys, make3, ship3, points=("middle", "staged", "landing"))
 
 
 # ---------------------------------------------------------------------------- the process: Ctrl-C and a kill
@@ -500,3 +502,73 @@ def test_a_signal_stops_a_publication_in_one_line_and_a_kill_is_finished_next_ti
     proc = run_script("publish.py", "docs", cwd=root)
     assert "finished the publication" in proc.stdout + proc.stderr
     assert assert_whole_or_nothing(old, new_set, snapshot(root), "after the kill") == "new"
+
+
+# ---------------------------------------------------------------------------- every target's set, its steps stubbed
+STEPS = {"publish": ("_write_tables", "_write_scaling", "_write_claims"), "publish-tables": ("_write_tables",),
+         "publish-claims": ("_write_claims",), "publish-paper-recipe": ("_write_tables", "_write_claims"),
+         "publish-scaling": ("_write_scaling",), "publish-threed": ("_write_threed",), "docs": ()}
+
+
+@pytest.mark.parametrize("target", first_fast(list(STEPS)))   # ~5 s each (copies of results/ and figures/)
+def test_every_publication_target_is_one_set(target, tmp_path, monkeypatch, capsys):
+    """Each target's steps (stubbed: each rewrites a table and adds a figure, as the apps would) and the
+    documents' refresh land as one set, stopped at any of its writes."""
+    from flock_torchrl.io import write_text
+    from flock_torchrl.report import publish
+
+    def step(name):
+        def write(*args, **kwargs):
+            pub = next(a for a in args if isinstance(a, Publication))
+            brief = pub.staged("results/paper_fit/table3_3d_brief.md")
+            write_text(brief, brief.read_text().replace("| wall3d |", f"| wall3d ({name}) |"))
+            write_text(pub.staged(f"figures/paper_fit/{name}.png"), name)
+        return write
+
+    for name in ("_write_tables", "_write_scaling", "_write_claims", "_write_threed"):
+        monkeypatch.setattr(publish, name, step(name) if name in STEPS[target] else None)
+    for name in ("_table_configs", "_paper_recipe_configs", "_scaling_plan", "_threed_plan"):
+        monkeypatch.setattr(publish, name, lambda cfg: ([], []))
+    monkeypatch.setattr(publish, "_threads", lambda cfg: None)
+
+    def make(root):
+        sandbox(root)
+        (root / "results" / "paper_fit" / "scaling_pooled.md").write_text("# stale\n")   # the refresh rewrites it
+        return root
+
+    def run():
+        publish.TARGETS[target](publish.settings())
+
+    points = ("first", "staged", "journal", "landing") if STEPS[target] else ("first", "landing")
+    stopped_at_several_writes(tmp_path, monkeypatch, capsys, make, run, points=points)
+
+
+def test_the_targets_that_run_apps_compose_their_commands(tmp_path, monkeypatch):
+    from flock_torchrl.report import publish
+
+    ran = []
+    monkeypatch.setattr(publish, "run_app", lambda command, log=None, stdout=None: ran.append(list(command)) or 0)
+    monkeypatch.chdir(ROOT)
+    scripts = ROOT / "scripts"
+    publish.scaling_outputs(publish.settings(["scaling_outputs.reading=paper_fit"]), scripts)
+    publish.scaling_outputs(publish.settings(["scaling_outputs.reading=literal"]), scripts)
+    assert ran[0][1:] == [str(scripts / "scaling.py"), "reading=paper_fit", "others=[checkpoints/paper_fit/mixed/policy3_g/seed0.pt]"]
+    assert ran[1][1:] == [str(scripts / "scaling.py"), "reading=literal"]   # no mixed-size policy shipped there
+    ran.clear()
+    folder = tmp_path / "check"
+    cfg = publish.settings([f"check_train_all.folder={folder}", "check_train_all.policies=policy1,policy3_g",
+                            "check_train_all.rows=Policy1,Policy3-G", "check_train_all.seeds=0,1", "episodes=7"])
+    folder.mkdir()
+    with pytest.raises(PublishError, match="exists; move it away"):
+        publish.check_train_all(cfg, scripts)
+    assert not ran
+    folder.rmdir()
+    monkeypatch.setattr(publish, "run_app", lambda command, log=None, stdout=None: (ran.append(list(command)),
+                                                                                    folder.mkdir(exist_ok=True))[0] and 0)
+    publish.check_train_all(cfg, scripts)
+    sweep, ship, table = (" ".join(c[1:]) for c in ran)
+    assert "train.py -m hydra/launcher=local experiment=fast progress=false resume=auto seed=0,1 policy=policy1,policy3_g" in sweep
+    assert f"hydra.sweep.dir={folder / 'runs'} reading=paper_fit" in sweep
+    assert f"ship.py reading=paper_fit runs_dir={folder / 'runs'} checkpoints_dir={folder / 'checkpoints'}" in ship
+    assert "episodes=7" in table and "only=[Policy1,Policy3-G]" in table and "compare_to=results/paper_fit/table3.csv" in table
+    assert (folder / "wall.txt").read_text().startswith("make train-all READING=paper_fit SEEDS=0,1: ")

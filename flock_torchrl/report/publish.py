@@ -278,18 +278,24 @@ def publish_claims(cfg: DictConfig, log: Log = _say) -> None:
         _write_claims(cfg, pub, log)
 
 
-def publish_paper_recipe(cfg: DictConfig, log: Log = _say) -> None:
-    """``make publish-paper-recipe``: under paper_fit, the fast Table III (its paper-recipe row pools the
-    shipped seeds), the paper recipe's Table III, Fig. 4 and the claims."""
+def _paper_recipe_configs(cfg: DictConfig) -> list[tuple[str, str, Any]]:
+    """publish-paper-recipe's tables and figure (paper_fit), each checked now."""
+    from .reproduce import check_table_inputs
+
     episodes = int(value(cfg, "episodes"))
     configs = [("paper_fit", "Table 3", _app(cfg, "reproduce", table=3, reading="paper_fit", episodes=episodes)),
                ("paper_fit", "Table 3, paper recipe",
                 _app(cfg, "reproduce", table=3, recipe="paper", reading="paper_fit", episodes=episodes)),
                ("paper_fit", "figures", _app(cfg, "figures", reading="paper_fit", figs=[4]))]
-    from .reproduce import check_table_inputs
-
     for _, what, c in configs[:2]:
         check_table_inputs(3, "paper_fit", c.checkpoints_dir, c.paper_recipe_dir, c.only, recipe=c.recipe)
+    return configs
+
+
+def publish_paper_recipe(cfg: DictConfig, log: Log = _say) -> None:
+    """``make publish-paper-recipe``: under paper_fit, the fast Table III (its paper-recipe row pools the
+    shipped seeds), the paper recipe's Table III, Fig. 4 and the claims."""
+    configs = _paper_recipe_configs(cfg)
     _threads(cfg)
     with publication(cfg, "the paper recipe's tables", log=log) as pub:
         _write_tables(pub, configs, log)
