@@ -291,7 +291,9 @@ def test_the_publishing_entry_points_answer_in_one_line(tmp_path, capsys):
              (seeds.main, [str(tmp_path / "none.csv"), str(tmp_path / "claims.md")], "error: no seeds table"),
              (seeds.main, [], "error: usage"),
              (splice.main, [str(tmp_path / "none.md")], "error: "),
-             (main, ["publish-threed", "threed.episodes=two"], "error: threed.episodes: must be a whole number")]
+             (main, ["publish-threed", "threed.episodes=two"], "error: threed.episodes: must be a whole number"),
+             (main, ["publish-threed", f"threed.policies=[{truncated}]"], "error: "),
+             (main, ["publish-threed", f"threed.policies=[{tmp_path}/none/*.pt]"], "error: no 3-D checkpoint matches")]
     for function, args, line in cases:
         assert function(args) == 2, (function.__module__, args)
         err = capsys.readouterr().err.strip().splitlines()

@@ -138,6 +138,13 @@ def publication(cfg: DictConfig, name: str, areas: Sequence[str] = ("results", "
     return Publication(name, areas, documents=value(cfg, "documents"), refresh=refresh, log=log)
 
 
+def staged_log(pub: Publication, log: Log) -> Log:
+    """``log`` with the stage's folder left out of the paths the apps say they wrote (``wrote
+    results/paper_fit/table3.md``: where it lands, with the rest of the set, at the end)."""
+    prefix = f"{pub.stage}{os.sep}"
+    return lambda line: log(line.replace(prefix, ""))
+
+
 # ---------------------------------------------------------------------------- Tables III-V and the figures
 def _table_configs(cfg: DictConfig) -> list[tuple[str, str, Any]]:
     """(reading, what, app config) of every table and figure set publish-tables writes, each checked now."""
@@ -269,12 +276,14 @@ def publish_tables(cfg: DictConfig, log: Log = _say) -> None:
     configs = _table_configs(cfg)
     _threads(cfg)
     with publication(cfg, "Tables III-V and the figures", log=log) as pub:
+        log = staged_log(pub, log)
         _write_tables(pub, configs, log)
 
 
 def publish_claims(cfg: DictConfig, log: Log = _say) -> None:
     """``make publish-claims``: the claims over the seeds of every published table, and the overview."""
     with publication(cfg, "the claims over seeds", log=log) as pub:
+        log = staged_log(pub, log)
         _write_claims(cfg, pub, log)
 
 
@@ -298,6 +307,7 @@ def publish_paper_recipe(cfg: DictConfig, log: Log = _say) -> None:
     configs = _paper_recipe_configs(cfg)
     _threads(cfg)
     with publication(cfg, "the paper recipe's tables", log=log) as pub:
+        log = staged_log(pub, log)
         _write_tables(pub, configs, log)
         _write_claims(cfg, pub, log)
 
@@ -307,6 +317,7 @@ def publish_scaling(cfg: DictConfig, log: Log = _say) -> None:
     configs = _scaling_plan(cfg)
     _threads(cfg)
     with publication(cfg, "the swarm-size tables", log=log) as pub:
+        log = staged_log(pub, log)
         _write_scaling(pub, configs, log)
 
 
@@ -315,6 +326,7 @@ def publish_threed(cfg: DictConfig, log: Log = _say) -> None:
     plan = _threed_plan(cfg)
     _threads(cfg)
     with publication(cfg, "the 3-D results", log=log) as pub:
+        log = staged_log(pub, log)
         _write_threed(cfg, pub, plan, log)
 
 
@@ -323,6 +335,7 @@ def publish_all(cfg: DictConfig, log: Log = _say) -> None:
     tables, scaling = _table_configs(cfg), _scaling_plan(cfg)
     _threads(cfg)
     with publication(cfg, "every table and figure", log=log) as pub:
+        log = staged_log(pub, log)
         _write_tables(pub, tables, log)
         _write_scaling(pub, scaling, log)
         _write_claims(cfg, pub, log)
@@ -335,6 +348,7 @@ def publish_benchmark(cfg: DictConfig, log: Log = _say) -> None:
     if not source.is_file():
         raise PublishError(f"no benchmark page at {source} (python -m benchmarks.run writes it)")
     with publication(cfg, "the benchmark", areas=("results/benchmark.md",), log=log) as pub:
+        log = staged_log(pub, log)
         shutil.copyfile(source, pub.staged("results/benchmark.md"))
 
 
