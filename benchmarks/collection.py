@@ -8,9 +8,7 @@ every batch, the SAC actor's ``ProbabilisticActor`` as the policy); the policy c
 
 Each candidate steps its own env (same scenario and seed) with Policy3-G's untrained SAC actor.
 Candidates alternate round by round in one process and each keeps its best round
-(:func:`benchmarks.timing.paired`), so load from other processes hits all of them alike. The
-env's own step (``FlockingEnv.busy_seconds``, what a training run's time split books as ``env``)
-is printed beside, per step. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+(:func:`benchmarks.timing.paired`), so load from other processes hits all of them alike. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations
@@ -78,25 +76,13 @@ def collection_lines(compile: bool = True, steps: int = 300, rounds: int = 7) ->
     candidates = {"bare": (bare, bare_env), "run": (collect(run_batches), run_env),
                   "default": (collect(default_batches), default_env),
                   "policy": (act(policy), None), "actor": (act(actor), None)}
-    busy = {name: 0.0 for name in candidates}
-
-    def timed_env(name: str, fn, e):
-        def go() -> None:
-            before = e.busy_seconds if e is not None else 0.0
-            fn()
-            if e is not None:
-                busy[name] = e.busy_seconds - before  # the last round's
-        return go
-
-    best = paired({name: timed_env(name, fn, e) for name, (fn, e) in candidates.items()}, repeat=rounds)
+    best = paired({name: fn for name, (fn, _) in candidates.items()}, repeat=rounds)
     ms = {name: 1000 * t / steps for name, t in best.items()}
-    env_ms = {name: 1000 * b / steps for name, b in busy.items()}
     head = f"collection paper cpu compile={str(compile).lower():5s}"
     return [
-        f"{head} bare loop (policy + env.step_and_maybe_reset): {ms['bare']:.3f} ms/step (env's own step "
-        f"{env_ms['bare']:.3f})",
+        f"{head} bare loop (policy + env.step_and_maybe_reset): {ms['bare']:.3f} ms/step",
         f"{head} the training run's Collector: {ms['run']:.3f} ms/step = {ms['run'] / ms['bare']:.2f}x the bare loop, "
-        f"{ms['run'] - ms['bare']:+.3f} ms (env's own step {env_ms['run']:.3f})",
+        f"{ms['run'] - ms['bare']:+.3f} ms",
         f"{head} TorchRL's defaults (a copy of every batch, the ProbabilisticActor): {ms['default']:.3f} ms/step = "
         f"{ms['default'] / ms['bare']:.2f}x the bare loop; the run's Collector is {ms['default'] / ms['run']:.2f}x "
         f"faster",

@@ -36,7 +36,7 @@ from flock_torchrl.config import TrainConfig  # noqa: E402
 from flock_torchrl.run.launch import train  # noqa: E402
 from flock_torchrl.run.trainer import make_train_config  # noqa: E402
 
-LOOP = ("env", "collection", "buffer", "sampling", "update", "members")
+LOOP = ("collection", "buffer", "sampling", "update", "members")
 
 
 def recipe_transitions(recipe: str):

@@ -23,6 +23,7 @@ for the benchmarks' child processes).
 from __future__ import annotations
 
 import contextlib
+import time
 from typing import Any, Callable
 from unittest import mock
 
@@ -234,6 +235,26 @@ def _vmap(real: Callable) -> Callable:
     return vmap
 
 
+class _Event:
+    """A CUDA event on the simulated device: ``record`` notes the host's clock (the CPU runs each
+    operation as it is called, so the device's timeline is the host's)."""
+
+    def __init__(self, enable_timing: bool = False, **kwargs: Any) -> None:
+        self.time: float | None = None
+
+    def record(self, stream: Any = None) -> None:
+        self.time = time.perf_counter()
+
+    def synchronize(self) -> None:
+        pass
+
+    def query(self) -> bool:
+        return True
+
+    def elapsed_time(self, end: "_Event") -> float:
+        return 1000.0 * (end.time - self.time)
+
+
 def _patches() -> list:
     from tensordict.nn import CudaGraphModule
 
@@ -261,7 +282,7 @@ def _patches() -> list:
                           "values (CudaGraphModule)")
         return call(self, *args, **kwargs)
 
-    cuda = {"is_available": lambda: True, "device_count": lambda: 1, "current_device": lambda: 0,
+    cuda = {"Event": _Event, "is_available": lambda: True, "device_count": lambda: 1, "current_device": lambda: 0,
             "_lazy_init": lambda: None, "synchronize": lambda *a, **k: None,
             "is_current_stream_capturing": lambda: False, "get_device_name": lambda *a, **k: "simulated CUDA (CPU)",
             "max_memory_allocated": lambda *a, **k: 0, "memory_allocated": lambda *a, **k: 0,

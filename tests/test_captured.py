@@ -143,16 +143,16 @@ def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(
     env = FlockingEnv(scenario, capture_step=True, **kwargs)
     twin = FlockingEnv(scenario, **kwargs)
     twin._transition = partial(transition, static_shapes=True, static=twin._static, cfg=twin.cfg)
-    assert isinstance(env._transition, CudaGraphModule) and isinstance(env._hand_out, CudaGraphModule)
+    assert isinstance(env._transition, CudaGraphModule) and isinstance(env.reserve._take, CudaGraphModule)
     given = set()
-    for module in (env._transition, env._hand_out):
+    for module in (env._transition, env.reserve._take):
         def spy(*args, _inner=module.module, **kw):
             given.update(type(leaf).__name__ for leaf in tree_leaves((args, kw)))
             return _inner(*args, **kw)
         module.module = spy
     refills = []
-    refill = env._refill_reserve
-    env._refill_reserve = lambda: (refills.append(True), refill())
+    refill = env.reserve.refill
+    env.reserve.refill = lambda draw: (refills.append(True), refill(draw))
     gen = torch.Generator().manual_seed(0)
     td, td_twin = env.reset(), twin.reset()
     quiet = 0

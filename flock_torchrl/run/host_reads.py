@@ -30,6 +30,10 @@ is a launch the host pays for, one by one), and ``launched_in_graphs``, those in
 a replay launches them as one graph). A CPU runs the wrapped functions as they are, so the
 count is the same here as there.
 
+It also counts, in ``counts`` as operator ``synchronize``, the host's explicit waits for the device:
+``torch.cuda.synchronize`` and a CUDA event's ``synchronize`` (flock_torchrl.run.timing's time
+split settling its events, or waiting at every block with ``profile``), by the line that asked.
+
 It cannot see ``Tensor.tolist()`` or ``.numpy()`` of a CPU tensor (they read memory without
 dispatching an operator), nor what runs inside a compiled graph (it runs such code eagerly, as
 the compiled paths' eager twins).
@@ -151,6 +155,28 @@ class HostReads(TorchDispatchMode):
             else:  # who asked: tensordict's own lines would name every tensordict operation alike
                 self.launched[_place(stack, ("flock_torchrl/", "torchrl/"))] += 1
         return func(*args, **kwargs)
+
+    def __enter__(self) -> "HostReads":
+        # The explicit waits are Python calls, not operators: counted by wrapping them while active.
+        def counted(owner: Any, name: str) -> None:
+            real = getattr(owner, name)
+
+            def wait(*args: Any, **kwargs: Any) -> Any:
+                self.counts[("synchronize", _place(traceback.extract_stack()[:-1]))] += 1
+                return real(*args, **kwargs)
+
+            setattr(owner, name, wait)
+            self._restore.append((owner, name, real))
+
+        self._restore: list[tuple[Any, str, Any]] = []
+        counted(torch.cuda, "synchronize")
+        counted(torch.cuda.Event, "synchronize")
+        return super().__enter__()
+
+    def __exit__(self, *exc: Any) -> Any:
+        for owner, name, real in reversed(self._restore):
+            setattr(owner, name, real)
+        return super().__exit__(*exc)
 
     @property
     def total(self) -> int:

@@ -199,7 +199,7 @@ class PopulationTraining(Training):
                 log[f"train/{name}"] = sum(values) / len(values)
         # Every member's frames and updates per second of the loop (the worlds this process steps):
         # under the solo run's names, and as before under perf/member_*.
-        speed = rates(self.split, self.counters, self.k)
+        speed = rates(self.split.settle(), self.counters, self.k)
         log.update(speed)
         log.update({k.replace("perf/", "perf/member_"): v for k, v in speed.items()})
         self._log(log)

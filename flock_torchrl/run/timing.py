@@ -9,38 +9,61 @@ from typing import Any, Iterable, Iterator
 
 import torch
 
-# The parts of a training loop's wall time, in the order a time split is printed.
-# "compile": a compiled learner's first update and a compiled env's first step in this process,
-# where torch.compile works.
+# The parts of a training loop's wall time, in the order a time split is printed. "collection": the
+# collector's batches, the env's steps included; "compile": a compiled learner's first update in this
+# process, where torch.compile works.
 _END = object()
-BUCKETS = ("env", "collection", "buffer", "sampling", "update", "compile", "logging", "evaluation", "checkpoints")
+BUCKETS = ("collection", "buffer", "sampling", "update", "compile", "logging", "evaluation", "checkpoints")
 
 
 class TimeSplit(dict):
     """Seconds of a loop by part (a ``dict`` of :data:`BUCKETS`, and any added): ``with
-    split.timer("buffer"): ...`` adds that block's wall time to its part.
+    split.timer("buffer"): ...`` adds that block's time to its part, timed from outside what it
+    times (as TorchRL's sota scripts do with ``timeit``).
 
-    ``device``: where the loop's tensors live. On a CUDA device the host runs ahead of the
-    GPU, so each timed block starts and ends with ``torch.cuda.synchronize``: a part is booked
-    the GPU work it launched, not the next part that waits for it (a few synchronisations per
-    iteration, at the part boundaries only). On the CPU nothing waits."""
+    ``device``: where the loop's tensors live. On a CPU a block is the host's wall time. On a CUDA
+    device the host runs ahead of the GPU, so a block is timed on the device, between two CUDA
+    events recorded on its stream, and nothing waits: the events are read by :meth:`settle`, which
+    the loop calls where it reads the host anyway (logging, the end). ``profile``: on CUDA,
+    synchronise at each block's start and end instead and book host wall time (a part then holds
+    the GPU work it launched, at the cost of two synchronisations a block)."""
 
-    def __init__(self, *more: str, device: torch.device | str | None = None) -> None:
+    def __init__(self, *more: str, device: torch.device | str | None = None, profile: bool = False) -> None:
         super().__init__(dict.fromkeys((*BUCKETS, *more), 0.0))
-        device = torch.device("cpu" if device is None else device)
-        self.synchronize = (lambda: torch.cuda.synchronize(device)) if device.type == "cuda" else None
+        cuda = torch.device("cpu" if device is None else device).type == "cuda"
+        self.synchronize = (lambda: torch.cuda.synchronize(device)) if cuda and profile else None
+        self.events: list[tuple[str, Any, Any]] | None = [] if cuda and not profile else None
 
     @contextmanager
     def timer(self, bucket: str) -> Iterator[None]:
+        if self.events is not None:
+            start = torch.cuda.Event(enable_timing=True)
+            start.record()
+            try:
+                yield
+            finally:
+                end = torch.cuda.Event(enable_timing=True)
+                end.record()
+                self.events.append((bucket, start, end))
+            return
         if self.synchronize is not None:
             self.synchronize()
-        start = time.perf_counter()
+        begun = time.perf_counter()
         try:
             yield
         finally:
             if self.synchronize is not None:
                 self.synchronize()
-            self[bucket] += time.perf_counter() - start
+            self[bucket] += time.perf_counter() - begun
+
+    def settle(self) -> "TimeSplit":
+        """Book the blocks timed on the device since the last call (waits for the last of them)."""
+        if self.events:
+            self.events[-1][2].synchronize()
+            for bucket, start, end in self.events:
+                self[bucket] += start.elapsed_time(end) / 1000.0
+            self.events.clear()
+        return self
 
     def timed(self, iterable: Iterable[Any], bucket: str) -> Iterator[Any]:
         """The items of ``iterable``, the time each takes to come booked under ``bucket``."""
@@ -52,17 +75,12 @@ class TimeSplit(dict):
                 return
             yield item
 
-    def move(self, seconds: float, source: str, target: str) -> None:
-        """Book ``seconds`` already counted under ``source`` under ``target`` instead."""
-        self[source] -= seconds
-        self[target] += seconds
-
 
 def rates(split: dict[str, float], counters: dict[str, Any], members: int = 1, prefix: str = "perf/"
           ) -> dict[str, float]:
     """Updates and frames per second of a loop's own time (times ``members``, a population's)."""
     return {f"{prefix}updates_per_s": members * counters["updates"] / max(split["sampling"] + split["update"], 1e-9),
-            f"{prefix}frames_per_s": members * counters["frames"] / max(split["env"] + split["collection"], 1e-9)}
+            f"{prefix}frames_per_s": members * counters["frames"] / max(split["collection"], 1e-9)}
 
 
 def split_line(split: dict[str, float]) -> str:

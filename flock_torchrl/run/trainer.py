@@ -111,16 +111,9 @@ class Training:
 
     def _loop(self, schedule: Schedule, signals: Signals) -> None:
         """Collect, count, learn; log, evaluate and checkpoint when due; until the budget or a signal."""
-        counters, split, exp = self.counters, self.split, self.cfg.experiment
-        env_busy = sum(e.busy_seconds for e in self.envs)
-        env_compile = sum(e.compile_seconds for e in self.envs)
+        counters, split = self.counters, self.split
         try:
             for batches in split.timed(zip(*self.collectors), "collection"):
-                if exp.workers == 1:  # the env's own share of the collection, and its step's compilation
-                    split.move(sum(e.busy_seconds for e in self.envs) - env_busy, "collection", "env")
-                    split.move(sum(e.compile_seconds for e in self.envs) - env_compile, "collection", "compile")
-                    env_busy = sum(e.busy_seconds for e in self.envs)
-                    env_compile = sum(e.compile_seconds for e in self.envs)
                 stats = self._consume(batches)
                 with split.timer("logging"):
                     if schedule.log.due(counters["frames"]):
@@ -226,7 +219,7 @@ class Training:
         if self.recent:
             log["train/episode_reward"] = sum(r for r, _ in self.recent) / len(self.recent)
             log["train/success_rate"] = sum(s for _, s in self.recent) / len(self.recent)
-        log.update(rates(self.split, self.counters))
+        log.update(rates(self.split.settle(), self.counters))
         self._log(log)
         if self.progress is not None:
             self.progress.update(self.counters, log)
@@ -280,7 +273,7 @@ class Training:
     def _result(self, path: Path, interrupted: int = 0) -> TrainResult:
         c = self.counters
         return TrainResult(self.run_dir, path, c["frames"], c["episodes"], c["updates"], c["seconds"],
-                           self.evaluations, interrupted, dict(self.split))
+                           self.evaluations, interrupted, dict(self.split.settle()))
 
     def _state(self) -> dict[str, Any]:
         """Everything the checkpoint holds."""

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import torch
+from tensordict import TensorDict
 
 from ..config.scenario import ScenarioConfig
 
@@ -158,6 +159,76 @@ def check_like(world: Any, reference: Any, parts: tuple[str, ...], what: str) ->
                 raise ValueError(f"{what} {key!r}: has dtype {got.dtype}, expected {value.dtype}")
 
 
+def checked_worlds(cfg: ScenarioConfig, saved: Any, count: int, reference: Any, what: str,
+                   device: torch.device, finite: bool = False) -> TensorDict:
+    """``count`` saved worlds (a mapping of a ``get_state()``'s world entries) as a TensorDict on
+    ``device``: every state key of its declared shape and dtype (:func:`check_state`; fields that
+    hold nothing in this scenario may be absent), its metrics and sensing cache as ``reference``'s,
+    and with ``finite`` no NaN or inf in the state. Anything else is a ``ValueError`` naming the key."""
+    worlds = TensorDict(fill_absent(cfg, saved, count, device), batch_size=[], device=device)
+    check_state(cfg, worlds, count, what)
+    if finite:  # a NaN position would give NaN observations and never end the episode
+        for key in STATE_KEYS:
+            value = worlds.get(key)
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise ValueError(f"{what}: {key!r} contains NaN or inf; a world's state must be finite")
+    check_like(worlds, reference, ("episode", "sensed"), what)
+    worlds.batch_size = torch.Size([count])
+    return worlds
+
+
+def placed_state(cfg: ScenarioConfig, kept: Mapping[str, torch.Tensor], given: Mapping[str, Any], batch: int,
+                 device: torch.device) -> dict[str, torch.Tensor]:
+    """The physical state ``FlockingEnv.place`` starts from: ``given`` (the arguments not ``None``,
+    as float32 on ``device``) over ``kept`` (the obstacles' entries of the current worlds) over an
+    empty state; a wrong shape, a NaN / inf value or a drawn obstacle of size <= 0 is a
+    ``ValueError`` naming the argument."""
+    state = empty_state(cfg, batch, device)
+    state.update(kept)
+    state.update({key: torch.as_tensor(value, dtype=torch.float32, device=device)
+                  for key, value in given.items() if value is not None})
+    check_state(cfg, state, batch, "place", keys=tuple(given))
+    for key, value in given.items():
+        if value is not None and not bool(torch.isfinite(state[key]).all()):
+            raise ValueError(f"place: {key} contains NaN or inf; positions, headings, goals and velocities "
+                             "must be finite")
+    for key in ("drawn_circles", "drawn_rectangles"):
+        if given.get(key) is not None and not bool((state[key][..., 2:] > 0).all()):
+            raise ValueError(f"place: {key} has a size <= 0; radii, widths and heights must be positive")
+    return state
+
+
+def checked_reset_mask(mask: Any, batch: int, device: torch.device) -> torch.Tensor:
+    """A reset's ``"_reset"`` entry as a bool ``[batch]`` on ``device``; anything else is a ``ValueError``."""
+    if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
+        raise ValueError(f"FlockingEnv.reset: \"_reset\" must be a torch.bool mask of {batch} world(s) (shape "
+                         f"[{batch}, 1]), got {mask.dtype if isinstance(mask, torch.Tensor) else type(mask).__name__}")
+    if mask.numel() != batch:
+        raise ValueError(f"FlockingEnv.reset: \"_reset\" has shape {list(mask.shape)}, expected [{batch}, 1] (one "
+                         "flag per world)")
+    return mask.reshape(batch).to(device)
+
+
+def world_index(index: Any, batch: int, device: torch.device) -> torch.Tensor:
+    """``FlockingEnv.subset``'s ``index`` (world indices, or a bool mask with one flag per world) as
+    int64 world indices; an empty, float or out-of-range index is a ``ValueError``."""
+    index = torch.as_tensor(index, device=device)
+    if index.dtype == torch.bool:
+        if index.numel() != batch:
+            raise ValueError(f"subset: a boolean mask needs one flag per world ({batch}), got shape "
+                             f"{list(index.shape)}")
+        index = index.reshape(-1).nonzero().reshape(-1)
+    elif index.is_floating_point() or index.is_complex():
+        raise ValueError(f"subset: index has dtype {index.dtype}; expected world indices (integers) or a boolean mask")
+    index = index.reshape(-1).long()
+    if not index.numel():
+        raise ValueError("subset: no world selected (an env holds at least one world)")
+    outside = index[(index < -batch) | (index >= batch)].tolist()
+    if outside:
+        raise ValueError(f"subset: world index {outside[:8]} out of range for {batch} world(s)")
+    return index
+
+
 def check_seed(seed: Any) -> None:
     """``seed``: ``None`` or an integer in [0, 2**64 - 1] (what the env's generators take)."""
     if seed is None:
@@ -184,4 +255,5 @@ def torch_device(device: Any) -> torch.device:
 
 
 __all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_like", "check_seed", "check_state", "checked_action",
-           "empty_state", "fill_absent", "state_shapes", "world_state", "torch_device"]
+           "checked_reset_mask", "checked_worlds", "empty_state", "fill_absent", "placed_state", "state_shapes",
+           "torch_device", "world_index", "world_state"]

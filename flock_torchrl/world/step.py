@@ -15,7 +15,7 @@ and dtypes of :data:`~.state.WORLD_STATE`; the metrics accumulator is a separate
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Any, Mapping, Sequence
 
 import torch
 
@@ -32,6 +32,26 @@ from .sensors import (add_sensor_noise, camera_observation, goal_observation, go
 from .state import world_state
 
 Tensors = Mapping[str, torch.Tensor]
+
+
+# Inductor's CPU code for the compiled step: the step's innermost dimensions are tiny (5 UAVs, 3
+# obstacles, 2 coordinates, 36 beams against 16-lane AVX-512 vectors), and inductor's defaults
+# vectorise them anyway, with masked loads and stores for each loop's remainder and 16 x 16 tiles
+# of which 5 rows hold data. Scalar remainders and no 2-D tiling measured 4.2x the eager step at
+# B = 1024 where the defaults gave 2.1x (one process, alternated; docs/throughput.md). CUDA
+# kernels (Triton) ignore both settings.
+STEP_COMPILE_OPTIONS = {"cpp.enable_loop_tail_vec": False, "cpp.enable_tiling_heuristics": False}
+# Calls of a whole compiled step and reset (compile_step with reset_pool) that run eagerly first
+# (TorchRL's compile warm-up): the tensordict's layout after a step is settled before tracing.
+WHOLE_WARMUP = 2
+
+
+def whole_step_guards(entries: Sequence[Any]) -> list[bool]:
+    """Dynamo's guards for the whole compiled step, less those on tensordict's memo of which
+    classes are tensorclasses: the traced step reads that memo, so dynamo guarded its length, and
+    any class checked anywhere later in the process (a learner's first update) recompiled the
+    step. The memo caches a class attribute: its other entries cannot change what the step does."""
+    return ["_TENSORCLASS_MEMO" not in entry.name for entry in entries]
 
 
 def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius: float,
