@@ -26,6 +26,9 @@ RESUME_MODES = ("false", "true", "auto")
 # Members of one population (each holds its own networks, optimiser state and replay buffer): a
 # GPU's populations of 80 fit, with room.
 MAX_POPULATION = 128
+# Fresh worlds a training env may hold in reserve (reset_pool): as many as experiment.num_envs may
+# be (the reserve needs at least num_envs); what a machine can hold is the memory check's.
+MAX_RESET_POOL = 10**7
 # What `compile` may be: nothing, both, or one of the env's step and the learner's loss.
 COMPILE_MODES = ("false", "true", "step", "loss")
 # What the train app returns to a sweeper (Optuna, Ax): a metric of the run's final evaluation.
@@ -131,7 +134,7 @@ class TrainConfig(RunOptions, WorldApp):
         choice("compile", str(self.compile).lower(), COMPILE_MODES)
         choice("objective", self.objective, OBJECTIVES)
         self._check_population(algo, experiment)
-        count("reset_pool", self.reset_pool, 0)
+        count("reset_pool", self.reset_pool, 0, MAX_RESET_POOL)
         if 0 < self.reset_pool < experiment.num_envs:
             reject("reset_pool", f"a reserve of fresh worlds needs at least num_envs ({experiment.num_envs}) of "
                                  f"them (one step can reset every world), got {self.reset_pool}; 0 turns it off")
