@@ -95,13 +95,14 @@ train-paper-all: $(STAMP)
 
 # Ten seeds of a policy as one population (docs/population.md): seeds 0-9 of the eight policies the
 # paper's claims rest on, under the paper's recipe (paper_fit), two populations at a time, each
-# resuming where it stopped (resume=auto); then the nine off-policy learners under `fast`.
+# resuming where it stopped (resume=auto), their update eager (a population vmaps its loss: compile=false, what
+# their runs recorded); then the nine off-policy learners under `fast`.
 # PolicyP-G (PPO) trains no population: its ten fast seeds are `make train-all SEEDS=0,...,9 LEARNED=policyp_g`.
 POPULATION ?= 10
 PAPER_POPULATIONS := policy3_g,policy3,policy1_g,policy1,policy2_g,policy2,policy4_g,policy5_g
 FAST_POPULATIONS  := policy1,policy1_g,policy2,policy2_g,policy3,policy3_g,policy4_g,policy5_g,policyd_g
 train-paper-populations: $(STAMP)
-	$(SWEEP) experiment=paper reading=paper_fit policy=$(PAPER_POPULATIONS) seed=0 population=$(POPULATION) hydra.sweep.dir=$(RUNS)
+	$(SWEEP) experiment=paper reading=paper_fit compile=false policy=$(PAPER_POPULATIONS) seed=0 population=$(POPULATION) hydra.sweep.dir=$(RUNS)
 
 # POP_SEED: the first member's seed (literal's shipped seeds 3-9: POPULATION=7 POP_SEED=3).
 POP_SEED ?= 0
