@@ -22,6 +22,7 @@ cannot (files, checkpoints, the swarm's spawn, memory) and a ``run``.
 from __future__ import annotations
 
 import dataclasses
+import os
 import signal
 import sys
 from dataclasses import dataclass
@@ -32,7 +33,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from .io import shown, write_failure
-from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted, say
+from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted, end_with_parent, leave, orphaned, say
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
@@ -375,9 +376,12 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         if stopped:  # joblib hands out the jobs it holds: they do not start
             say(f"not started: {out} (the sweep was stopped by {signal.Signals(stopped).name})")
             return 128 + stopped
-        obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
-        APP_SIGNALS.arm()  # also where no PreRunCheck ran (a config without the callback)
+        parent = os.getppid() if APP_SIGNALS.in_sweep_worker() else 0
+        if parent:  # a job worker: it ends with the sweep's process, even a killed one
+            end_with_parent(parent)
         try:
+            obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
+            APP_SIGNALS.arm()  # also where no PreRunCheck ran (a config without the callback)
             return _guard(lambda: APPS[app].run(obj, out))
         except TrainingInterrupted as exc:
             say(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); resume with: {exc.command}")
@@ -385,6 +389,9 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
                 APP_SIGNALS.mark_worker_stopped(exc.signum)
                 return exc.exit_status
             raise SystemExit(exc.exit_status) from None
+        finally:
+            if parent and orphaned(parent):  # the sweep's process is gone: nobody waits for this worker
+                leave(128 + signal.SIGTERM)
 
     task.__name__ = app
     return task

@@ -777,3 +777,48 @@ def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_job
     (held,) = [line for line in err.splitlines() if line.startswith("not started: ")]
     assert "seed2" in held and held.endswith("(the sweep was stopped by SIGTERM)")
     assert not list(sweep.rglob("seed2*/last.pt"))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
+def test_the_job_workers_of_a_killed_joblib_sweep_end_with_it_and_free_their_folders(tmp_path):
+    """SIGKILL of a joblib sweep's process (the probe's case): its job workers lived on, ran their
+    jobs to the end and held their run folders' locks. Now each stops with its checkpoint, at once,
+    and the rerun takes the folder."""
+    import signal
+    import time
+
+    from filelock import FileLock
+
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/launcher=joblib",
+                             "hydra.launcher.n_jobs=2", *TINY, "experiment.max_frames=100000",
+                             "experiment.checkpoint_every_frames=64", "seed=0,1", f"hydra.sweep.dir={sweep}"],
+                            cwd=tmp_path, env=script_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.time() + 300
+    while len(list(sweep.rglob("last.pt"))) < 2 and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.1)
+    folders = sorted(p.parent for p in sweep.rglob("last.pt"))
+    assert len(folders) == 2, proc.communicate() if proc.poll() is not None else "no checkpoints"
+    workers = [int((f / ".lock.holder").read_text().split()[1]) for f in folders]  # "PID <pid> on <host>, ..."
+    assert proc.pid not in workers and all(alive(w) for w in workers)
+    os.kill(proc.pid, signal.SIGKILL)  # the sweep's process alone: it cannot pass anything on
+    try:
+        out, err = proc.communicate(timeout=90)  # its stderr closes when the last worker holding it ends
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise AssertionError(f"the job workers {workers} outlived their sweep: {proc.communicate()[1][-3000:]}")
+    time.sleep(0.5)
+    assert not [w for w in workers if alive(w)]
+    lines = [line for line in err.splitlines() if line.startswith("stopped by SIGTERM: checkpoint")]
+    assert sorted(line.split(" -cd ")[1].split(" -cn ")[0] for line in lines) == [str(f) for f in folders], err
+    for folder in folders:
+        with FileLock(str(folder / ".lock"), timeout=0):  # free: no worker holds it
+            pass
+    frames = int(lines[0].split(" frames)")[0].rsplit("(", 1)[1])
+    folder = Path(lines[0].split(" -cd ")[1].split(" -cn ")[0])
+    rerun = script("train.py", "-cd", str(folder), "-cn", "resume", f"experiment.max_frames={frames + 32}",
+                   cwd=tmp_path)
+    assert rerun.returncode == 0 and f"({frames + 32} frames" in rerun.stdout, rerun.stderr[-3000:]

@@ -203,6 +203,40 @@ def test_a_second_process_on_the_same_folder_is_refused(tmp_path):
                         cwd=tmp_path))[0] == 0
 
 
+HOLD_THE_LOCK = """
+import os, socket, sys
+from filelock import FileLock
+folder = sys.argv[1]
+lock = FileLock(os.path.join(folder, ".lock"), timeout=0)
+lock.acquire()
+with open(os.path.join(folder, ".lock.holder"), "w") as holder:  # as RunLock records its holder
+    holder.write(f"PID {os.getpid()} on {socket.gethostname()}, started 2026-01-01 00:00:00\\n")
+print("held", flush=True)
+sys.stdin.read()
+"""
+
+
+def test_a_busy_run_folder_names_the_process_to_stop(tmp_path):
+    """A folder held by another process on this host (an orphan of a killed sweep, say): the
+    refusal names its PID and the command that stops it; once it is gone the folder is free."""
+    from flock_torchrl.run.run_folder import RunLock
+
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_THE_LOCK, str(tmp_path)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        with pytest.raises(CheckpointError, match=rf"^{tmp_path} is in use by PID {holder.pid} on \S+, started "
+                                                  rf"2026-01-01 00:00:00; wait for it or stop it \(kill {holder.pid}; a "
+                                                  r"killed process releases its lock\)$"):
+            with RunLock(tmp_path):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+    with RunLock(tmp_path):  # its lock died with it
+        assert (tmp_path / ".lock.holder").read_text().startswith(f"PID {os.getpid()} on ")
+
+
 # ---------------------------------------------------------------------------- 4 and 1: resume
 def test_resume_with_other_settings_is_refused_and_changes_nothing(tmp_path):
     result = train(tiny("experiment.max_frames=64"), tmp_path / "run")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 import shlex
 import socket
 import sys
@@ -36,7 +37,8 @@ RUN_FOLDER = "${flock.config_folder:${hydra.runtime.config_sources},${hydra.job.
 class RunLock:
     """An exclusive lock on ``<run>/.lock`` for the life of a training process (``filelock``:
     the operating system drops it when its process dies, so a lock left by a killed run is
-    never stale). ``.lock.holder`` records the holder's PID, host and start time for the message."""
+    never stale). ``.lock.holder`` records the holder's PID, host and start time for the message,
+    which, for a holder on this host, says how to stop it (``kill <pid>``)."""
 
     def __init__(self, run_dir: Path) -> None:
         self.path = run_dir / ".lock"
@@ -52,8 +54,10 @@ class RunLock:
             lock.acquire()
         except Timeout:
             holder = self.holder.read_text().strip() if self.holder.is_file() else "another process"
+            found = re.match(r"PID (\d+) on (\S+),", holder)
+            how = f"kill {found[1]}; " if found and found[2] == socket.gethostname() else ""
             raise CheckpointError(f"{self.path.parent} is in use by {holder}; wait for it or stop it "
-                                  "(a killed process releases its lock)") from None
+                                  f"({how}a killed process releases its lock)") from None
         self.lock = lock
         write_text(self.holder, f"PID {os.getpid()} on {socket.gethostname()}, started "
                                 f"{time.strftime('%Y-%m-%d %H:%M:%S')}\n")

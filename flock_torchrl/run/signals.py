@@ -8,6 +8,8 @@
   when the run stops, and :func:`shutdown` stops the collector, a watchdog bounding the wait.
 * Worker processes start where a signal cannot reach them half-started (:func:`start_workers`).
 * Multiprocessing's resource tracker starts with them ignored (:func:`start_resource_tracker`).
+* A sweep's job worker (joblib) ends with the sweep's process, even one killed by SIGKILL
+  (:func:`end_with_parent`).
 
 * In an app, from its start to its run (:class:`AppSignals`, :data:`APP_SIGNALS`): signals
   are noted until the run is checked, then armed; a joblib sweep's parent waits for its jobs.
@@ -175,6 +177,47 @@ class AppSignals:
 
 # The app of this process (flock_torchrl.cli.main starts it).
 APP_SIGNALS = AppSignals()
+# Whether this process (a sweep's job worker) watches its parent already (end_with_parent).
+_WATCHING: list[int] = []
+
+
+def end_with_parent(parent: int, poll: float = 0.5, grace: float = SHUTDOWN_TIMEOUT) -> None:
+    """In a sweep's job worker (joblib's, a child of the sweep's process ``parent``): end with
+    the parent. A SIGKILL of the parent cannot be passed on, and the workers lived on, ran their
+    jobs to the end and held their run folders' locks against the rerun. A daemon thread watches
+    the parent; once it is gone the worker sends itself SIGTERM (a training job writes its
+    checkpoint and stops, as on any SIGTERM; a worker between jobs ends) and exits ``grace``
+    seconds later if it still runs. A job that returns after its parent died ends the worker
+    (:func:`leave`). Started once per process."""
+    if _WATCHING:
+        return
+    _WATCHING.append(parent)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll)
+        say(f"the sweep's process (PID {parent}) is gone: stopping its job worker (PID {os.getpid()}) with SIGTERM")
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(grace)
+        leave(128 + signal.SIGTERM)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
+
+
+def orphaned(parent: int) -> bool:
+    """This process's parent is no longer ``parent`` (it died: the process was handed to init)."""
+    return os.getppid() != parent
+
+
+def leave(status: int) -> None:
+    """Exit this process now, with ``status``, its output flushed (an orphaned job worker: nobody
+    waits for its result, and its pool would wait for a parent that is gone)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(status)
 
 
 def ignore_stop_signals() -> None:
@@ -281,5 +324,5 @@ def start_workers(make: Any, poll: float = 0.05, grace: float = 5.0) -> Any:
     return box["collector"]
 
 
-__all__ = ["APP_SIGNALS", "AppSignals", "SHUTDOWN_TIMEOUT", "STOPPED_WORKER", "STOP_SIGNALS", "SWEEP_PARENT", "Signals", "Stopped", "TrainingInterrupted", "ignore_stop_signals",
-           "shutdown", "start_resource_tracker", "start_workers"]
+__all__ = ["APP_SIGNALS", "AppSignals", "SHUTDOWN_TIMEOUT", "STOPPED_WORKER", "STOP_SIGNALS", "SWEEP_PARENT", "Signals", "Stopped", "TrainingInterrupted", "end_with_parent",
+           "ignore_stop_signals", "leave", "orphaned", "shutdown", "start_resource_tracker", "start_workers"]
