@@ -384,4 +384,5 @@ def check_yaml_files(paths: list[Path]) -> None:
 
 
 __all__ = ["AppError", "OBJECTIVE_DIRECTIONS", "blame", "check_launcher", "check_resume_folder", "check_trained_dims",
-           "check_writable", "check_yaml_files", "composed_yaml_files", "config_folders", "sweep_direction", "sweep_jobs"]
+           "check_writable", "check_yaml_files", "composed_yaml_files", "config_folders", "sweep_direction",
+           "sweep_jobs"]

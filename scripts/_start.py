@@ -35,10 +35,15 @@ def address_limit() -> str | None:
 
 
 def out_of_memory(exc: BaseException) -> str | None:
-    """Why loading the app failed, in one line, when the process's memory limit is the cause
-    (``None``: another failure, left to its traceback)."""
+    """Why loading the app failed, in one line, when the process's memory limit is the cause: a
+    ``MemoryError``, or a library that could not be mapped (``None``: another failure, left to
+    its traceback)."""
+    import errno
+
     limit = address_limit()
-    if limit is None or isinstance(exc, ModuleNotFoundError) or not isinstance(exc, (ImportError, MemoryError, OSError)):
+    text = str(exc).lower()
+    mapping = "failed to map" in text or "cannot allocate memory" in text or getattr(exc, "errno", None) == errno.ENOMEM
+    if limit is None or not (isinstance(exc, MemoryError) or mapping):
         return None
     why = " ".join(f"{type(exc).__name__}: {exc}".split())
     return f"error: starting the app needs more memory than its {limit} lets this process map ({why}); raise the limit"

@@ -553,7 +553,8 @@ DIMS_MISMATCHES = {
     "scaling others": ("scaling.py", [f"others=[{THREED}]", "sizes=[5]"],
                        f"scenario.dims: is 2 here, but {THREED} was trained in a world with dims 3"),
     "diagnose train3d": ("diagnose.py", ["scenarios=[train3d]", "policies=[policy3_g]", "sizes=[5]", "variants=[paper]"],
-                         f"scenarios: train3d's scenario.dims is 3 here, but {SHIPPED} was trained in a world with dims 2"),
+                         f"scenarios: train3d's scenario.dims is 3 here, but {SHIPPED} was trained in a world with "
+                         "dims 2"),
     "diagnose 3-D seed1": ("diagnose.py", ["checkpoints_dir={mixed}", "policies=[policy3_g]", "scenarios=[train]",
                                            "sizes=[5]", "variants=[paper]"],
                            "scenarios: train's scenario.dims is 2 here, but {mixed}/paper_fit/policy3_g/seed1.pt was "

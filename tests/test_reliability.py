@@ -226,8 +226,8 @@ def test_a_busy_run_folder_names_the_process_to_stop(tmp_path):
     try:
         assert holder.stdout.readline() == "held\n"
         with pytest.raises(CheckpointError, match=rf"^{tmp_path} is in use by PID {holder.pid} on \S+, started "
-                                                  rf"2026-01-01 00:00:00; wait for it or stop it \(kill {holder.pid}; a "
-                                                  r"killed process releases its lock\)$"):
+                                                  rf"2026-01-01 00:00:00; wait for it or stop it \(kill {holder.pid}; "
+                                                  r"a killed process releases its lock\)$"):
             with RunLock(tmp_path):
                 pass
     finally:

@@ -196,7 +196,10 @@ def end_with_parent(parent: int, poll: float = 0.5, grace: float = SHUTDOWN_TIME
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(poll)
-        say(f"the sweep's process (PID {parent}) is gone: stopping its job worker (PID {os.getpid()}) with SIGTERM")
+        try:
+            say(f"the sweep's process (PID {parent}) is gone: stopping its job worker (PID {os.getpid()}) with SIGTERM")
+        except (OSError, ValueError):  # its stderr went with it: stop all the same
+            pass
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(grace)
         leave(128 + signal.SIGTERM)
