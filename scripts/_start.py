@@ -12,6 +12,8 @@ first, with nothing but the standard library loaded:
   other memory refusals (``flock_torchrl/world/memory.py``) are.
 """
 
+from __future__ import annotations
+
 import signal
 import sys
 
@@ -19,7 +21,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(sig
 
 
 def address_limit() -> str | None:
-    """The process's address-space or data limit in words (``ulimit -v of 300 MiB``); ``None``: none."""
+    """The process's address-space or data limit in words (``ulimit -v of 0.3 GiB``); ``None``: none."""
     import resource
 
     limits = []
