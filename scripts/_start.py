@@ -1,4 +1,5 @@
-"""How every app of scripts/ starts (not an app itself): ``start("evaluate")`` at the top of a script.
+"""How every app of scripts/ starts (not an app itself): ``start("evaluate")`` at the top of a script
+(``noting()`` and ``load()`` for one whose entry is not ``flock_torchrl.cli.main``).
 
 Python takes seconds to load torch and the package, before ``flock_torchrl.cli`` exists. Here,
 first, with nothing but the standard library loaded:
@@ -51,17 +52,29 @@ def out_of_memory(exc: BaseException) -> str | None:
     return f"error: starting the app needs more memory than its {limit} lets this process map ({why}); raise the limit"
 
 
-def start(app: str) -> None:
-    """Run the Hydra app ``app`` (``flock_torchrl.cli.main``) on ``sys.argv``."""
+def noting() -> list[int]:
+    """Note stop signals from now on (the app stops on them once loaded); the list they go in."""
     noted: list[int] = []
     for signum in STOP_SIGNALS:
         signal.signal(signum, lambda signum, frame: noted.append(signum))
+    return noted
+
+
+def load(module: str, name: str):
+    """``module.name``, imported; a failure under the process's memory limit is one line, exit 2."""
+    import importlib
+
     try:
-        from flock_torchrl.cli import main
+        return getattr(importlib.import_module(module), name)
     except (ImportError, MemoryError, OSError) as exc:
         line = out_of_memory(exc)
         if line is None:
             raise
         sys.stderr.write(line + "\n")
         raise SystemExit(2) from None
-    main(app, noted)
+
+
+def start(app: str) -> None:
+    """Run the Hydra app ``app`` (``flock_torchrl.cli.main``) on ``sys.argv``."""
+    noted = noting()
+    load("flock_torchrl.cli", "main")(app, noted)

@@ -108,7 +108,7 @@ def test_memory_the_run_cannot_have_is_refused_before_anything_is_written(tmp_pa
 
 
 @pytest.mark.parametrize("app", first_fast(["evaluate", "train", "diagnose", "scaling", "reproduce", "figures", "ship",
-                                            "tune_baselines"]))
+                                            "tune_baselines", "publish"]))
 def test_a_limit_too_small_to_load_torch_is_one_line_naming_it(tmp_path, app):
     """``ulimit -v 307200`` (300 MiB): torch cannot map its libraries; one line naming the limit,
     exit 2, as the other memory refusals, not an ImportError traceback."""
