@@ -85,7 +85,7 @@ def synchronize(device: str) -> None:
 def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str]:
     """Member-updates/s of the paper recipe's update alone on ``device``: captured against not."""
     from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.policies.learners import OffPolicyLearner
 
     from flock_torchrl import FlockingEnv
 
@@ -102,7 +102,7 @@ def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str
                 learner = make_learner(env, cfg.algo, cfg.policy.critic_input, cudagraphs=cudagraphs)
                 batches = [seen[torch.randint(0, seen.shape[0], (size,), device=device)] for _ in range(8)]
             else:
-                learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(k)),
+                learner = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, list(range(k)),
                                             cudagraphs=cudagraphs)
                 batches = [seen[torch.randint(0, seen.shape[0], (size * k,), device=device)].reshape(size, k)
                            for _ in range(8)]

@@ -5,7 +5,7 @@
 
 Trains Policy3-G under ``--recipe`` with ``cudagraphs=true`` (the captured update; a pass-through
 on a CPU) and the env's static-shape step run eagerly (the step ``compile=true`` compiles, so
-that :class:`~flock_torchrl.run.host_reads.HostReads` sees inside it), warms up for the
+that :class:`~benchmarks.counting.HostReads` sees inside it), warms up for the
 recipe's random frames plus 20 iterations, counts ``--iterations`` iterations of the loop
 (collection, buffer, sampling, update, bookkeeping; logging, evaluation and checkpoints are
 off) and prints the reads per iteration by the line that made them. Reads inside the captured
@@ -26,8 +26,7 @@ if not __package__:  # `python benchmarks/host_reads.py`: the repository's root,
 
 from flock_torchrl.capture import captured  # noqa: E402
 from flock_torchrl.config import TrainConfig  # noqa: E402
-from flock_torchrl.run.host_reads import HostReads  # noqa: E402
-from flock_torchrl.run.population import PopulationTraining  # noqa: E402
+from benchmarks.counting import HostReads  # noqa: E402
 from flock_torchrl.run.trainer import Training, make_train_config  # noqa: E402
 from flock_torchrl.world.step import transition  # noqa: E402
 
@@ -90,7 +89,7 @@ def count_reads(recipe: str = "paper", members: int = 1, iterations: int = 200,
         f"experiment.max_frames={frames}", "experiment.max_episodes=0", f"experiment.log_every_frames={2 * frames}",
         "experiment.eval_every_frames=0", "experiment.checkpoint_every_frames=0", "experiment.eval_episodes=1",
         *overrides]))
-    cls = counted(PopulationTraining if members > 1 else Training)
+    cls = counted(Training)
     cls.start, cls.launches, cls.as_compiled = start, launches, as_compiled
     with tempfile.TemporaryDirectory() as folder:
         cls(cfg, Path(folder) / "run").run()

@@ -62,11 +62,11 @@ def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
     batching of the members' updates can reach on this core."""
     from torch.profiler import profile
 
-    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.policies.learners import OffPolicyLearner
 
     cfg, env, seen = recipe_transitions(recipe)
     # Two members under vmap: the batched products (bmm) the population runs, counted once each.
-    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1])
+    learner = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1])
     batch = seen[torch.randint(0, seen.shape[0], (2 * cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 2)
     learner.update(batch)
     with profile(with_flops=True) as prof:
@@ -129,12 +129,12 @@ def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int =
     minutes, which rows trained one after another in child processes do not (a shared
     machine's speed drifts by tens of per cent within minutes)."""
     from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.policies.learners import OffPolicyLearner
 
     cfg, env, seen = recipe_transitions(recipe)
     size = cfg.algo.batch_size
     solo = make_learner(env, cfg.algo, cfg.policy.critic_input)
-    population = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
+    population = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
     solo_batches = [seen[torch.randint(0, seen.shape[0], (size,))] for _ in range(8)]
     member_batches = [seen[torch.randint(0, seen.shape[0], (size * members,))].reshape(size, members)
                       for _ in range(8)]
@@ -161,11 +161,11 @@ def evaluation_line(recipe: str, members: int, episodes: int = 1) -> str:
     same episodes, in this process."""
     import copy
 
-    from flock_torchrl.policies.population import PopulationLearner
+    from flock_torchrl.policies.learners import OffPolicyLearner
     from flock_torchrl.run.rollout import evaluate, evaluate_members
 
     cfg, env, _ = recipe_transitions(recipe)
-    learner = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
+    learner = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
     actor = copy.deepcopy(learner.actor)
     start = time.perf_counter()
     for k in range(members):

@@ -40,7 +40,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from flock_torchrl.cli import fail
 from flock_torchrl.config import ConfigError, Schema, algo_config, check_device, check_threads, compose
 from flock_torchrl.io import write_text
-from flock_torchrl.policies.learners import SACLearner, compiled
+from flock_torchrl.policies.learners import OffPolicyLearner, compiled
 from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
@@ -232,11 +232,11 @@ def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, re
         cfg = algo_config(compose("train", [f"experiment={recipe}"]).algo)
         env, samples = replay_batches(batch_uav, updates, device)
         torch.manual_seed(0)
-        candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": SACLearner(env, cfg, "state")}
+        candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": OffPolicyLearner(env, cfg, "state")}
         if compile_loss:
-            candidates["compiled"] = SACLearner(env, cfg, "state", compile=True)
+            candidates["compiled"] = OffPolicyLearner(env, cfg, "state", compile=True)
         if compile_loss and device == "cpu":  # inductor's default (vectorised) CPU kernels
-            vectorised = candidates["compiled, vectorised kernels"] = SACLearner(env, cfg, "state")
+            vectorised = candidates["compiled, vectorised kernels"] = OffPolicyLearner(env, cfg, "state")
             vectorised.loss_fn = compiled(vectorised.loss, True, options={})
 
         def run(learner) -> Callable[[], None]:

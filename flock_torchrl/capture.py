@@ -1,7 +1,7 @@
 """Functions recorded as one CUDA graph on a GPU: tensordict's ``CudaGraphModule``, in one place.
 
 What is captured must never read a tensor's value on the host and must take its tensors as
-arguments (or hold ones that never change); ``run/host_reads.py`` counts the reads the tests
+arguments (or hold ones that never change); ``benchmarks/counting.py`` counts the reads the tests
 hold to zero. On a CPU ``CudaGraphModule`` calls the function as it is (its inputs copied, as a
 replay's are), so the captured code path runs (and is tested) here too; its graphs exist only on
 CUDA, and the first wrapping on a device without them says so once, in one line.

@@ -33,7 +33,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from .io import shown, write_failure
-from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted, end_with_parent, leave, orphaned, say
+from .run.signals import APP_SIGNALS, Stopped, TrainingInterrupted, end_with_parent, job_tag, leave, orphaned, say
 
 from .config import (APP_SCHEMAS, CONF_DIR, ConfigError, EvaluateConfig, FiguresConfig, ReproduceConfig, ScalingConfig,
                      Schema, ShipConfig, TrainConfig, TuneConfig, register)
@@ -80,7 +80,7 @@ def _set_threads(threads: int) -> None:
 
 
 def _say(message: str) -> None:
-    print(message, flush=True)
+    print(job_tag() + message, flush=True)
 
 
 # -- train

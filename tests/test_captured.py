@@ -11,9 +11,8 @@ import torch
 from flock_torchrl.config import ConfigError, TrainConfig
 from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.policies.learners import make_learner
-from flock_torchrl.policies.population import PopulationLearner
+from flock_torchrl.policies.learners import OffPolicyLearner
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.population import PopulationTraining
 from flock_torchrl.run.trainer import Training, make_train_config
 
 from test_population import quick_config, transitions
@@ -40,8 +39,8 @@ def test_a_captured_update_equals_the_eager_one(policy):
     captured, eager = learners
     assert captured.cudagraphs and not eager.cudagraphs
     _equal_updates(captured, eager, [td[i * 26:(i + 1) * 26] for i in range(4)])
-    for name, value in eager.actor.state_dict().items():
-        torch.testing.assert_close(captured.actor.state_dict()[name], value, rtol=1e-6, atol=1e-7)
+    for name, value in eager.actor_state(0).items():
+        torch.testing.assert_close(captured.actor_state(0)[name], value, rtol=1e-6, atol=1e-7)
     for a, b in zip(captured.optimizer.state_dict()["state"].values(), eager.optimizer.state_dict()["state"].values()):
         torch.testing.assert_close(a["exp_avg_sq"], b["exp_avg_sq"], rtol=1e-6, atol=1e-9)
 
@@ -51,7 +50,7 @@ def test_a_captured_population_update_equals_the_eager_one():
     pops = []
     for cudagraphs in (True, False):
         torch.manual_seed(0)
-        pops.append(PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1], cudagraphs=cudagraphs))
+        pops.append(OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1], cudagraphs=cudagraphs))
     batches = [torch.stack([td[(2 * i + k) * 13:(2 * i + k + 1) * 13] for k in range(2)], 1) for i in range(3)]
     _equal_updates(*pops, batches)
     for k in range(2):
@@ -79,30 +78,23 @@ def test_a_captured_update_defers_the_finite_check_to_check():
     eager = make_learner(env, cfg.algo, cfg.policy.critic_input)
     with pytest.raises(FloatingPointError, match="loss"):
         eager.update(batch)
-    pop = PopulationLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1], cudagraphs=True)
+    pop = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1], cudagraphs=True)
     two = torch.stack([td[52:78].clone(), poisoned()], 1)  # member 1's column diverges
     pop.update(two)
     with pytest.raises(FloatingPointError, match="of member 1 was not finite"):
         pop.check()
 
 
-def test_a_captured_run_equals_the_uncaptured_one_and_a_population_of_one(tmp_path):
+def test_a_captured_run_equals_the_uncaptured_one(tmp_path):
     """The trainer with ``cudagraphs=true``: the solo run as the uncaptured one (up to float
-    round-off; on a CPU the same arithmetic), and a captured population of one bitwise the
-    captured solo run."""
+    round-off; on a CPU the same arithmetic)."""
     plain = Training(quick_config(1), tmp_path / "plain").run()
-    captured_cfg = quick_config(1, "policy3_g", "cudagraphs=true")
-    captured = Training(captured_cfg, tmp_path / "captured").run()
-    one = PopulationTraining(captured_cfg, tmp_path / "one").run()
+    captured = Training(quick_config(1, "policy3_g", "cudagraphs=true"), tmp_path / "captured").run()
     assert plain.updates > 0 and (plain.frames, plain.updates) == (captured.frames, captured.updates)
     a = load_checkpoint(tmp_path / "plain" / "last.pt")
     b = load_checkpoint(tmp_path / "captured" / "last.pt")
-    c = load_checkpoint(tmp_path / "one" / "last.pt")
     for name, value in a["actor"].items():
         torch.testing.assert_close(b["actor"][name], value, rtol=1e-5, atol=1e-6)
-        assert torch.equal(c["members"][0]["actor"][name], b["actor"][name])
-    assert (tmp_path / "captured" / "episodes.csv").read_text() == \
-        (tmp_path / "one" / "seed0" / "episodes.csv").read_text()
 
 
 @pytest.mark.parametrize("extra", [[], ["reset_pool=8"]])  # with a reserve: the hand-out captured too
@@ -136,7 +128,7 @@ def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(
     from torch.utils._pytree import tree_leaves
 
     from flock_torchrl import FlockingEnv
-    from flock_torchrl.run.host_reads import HostReads
+    from benchmarks.counting import HostReads
     from flock_torchrl.world.step import transition
 
     kwargs = dict(num_envs=4, seed=1, policy_id="policy3_g", max_steps=3, reset_pool=12, check_actions=False)

@@ -101,7 +101,7 @@ def test_a_captured_population_trains_on_cuda(tmp_path, real_cuda):
 
 
 def test_host_reads_see_copies_between_the_cpu_and_cuda(real_cuda):
-    from flock_torchrl.run.host_reads import HostReads
+    from benchmarks.counting import HostReads
 
     if not real_cuda:
         pytest.skip("pinned memory is not simulated")

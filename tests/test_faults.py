@@ -774,6 +774,10 @@ def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_job
     assert sorted(line.split("resume with: ")[1].split(" -cd ")[1].split(" -cn ")[0] for line in lines) == \
         [str(f) for f in folders], err
     assert "Traceback" not in err and "leaked" not in err
+    # The jobs' lines interleave on one stdout: each says whose it is (its folder under the sweep's).
+    evals = [line for line in out.splitlines() if "eval @" in line]
+    assert evals and all(line.startswith("[") and "] eval @ " in line for line in evals), out
+    assert {line[1:].split("]")[0] for line in evals} <= {f.relative_to(sweep).as_posix() for f in folders}, out
     # The job joblib held back does not start after the signal.
     (held,) = [line for line in err.splitlines() if line.startswith("not started: ")]
     assert "seed2" in held and held.endswith("(the sweep was stopped by SIGTERM)")

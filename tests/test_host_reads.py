@@ -6,7 +6,7 @@ import torch
 from tensordict import TensorDict
 
 from flock_torchrl.run.batches import EPISODE_METRICS, PendingEpisodes, episode_values
-from flock_torchrl.run.host_reads import HostReads
+from benchmarks.counting import HostReads
 
 
 def test_the_counter_sees_each_kind_of_read_and_no_arithmetic():

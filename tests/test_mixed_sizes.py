@@ -10,7 +10,7 @@ import torch
 from flock_torchrl import FlockingEnv, load_policy
 from flock_torchrl.config import ConfigError, algo_config, app_config, compose
 from flock_torchrl.policies.checkpoint import load_checkpoint
-from flock_torchrl.policies.learners import SACLearner
+from flock_torchrl.policies.learners import OffPolicyLearner
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done, make_train_config, per_uav
 
@@ -40,7 +40,7 @@ def test_per_uav_puts_uav_j_of_transition_m_at_row_m_n_plus_j():
 
 def test_sac_losses_on_single_uav_transitions_equal_those_on_swarm_transitions():
     env, batch = swarm_batch(5)
-    learner = SACLearner(env, algo_config(compose("train", ["experiment=fast"]).algo), "state")
+    learner = OffPolicyLearner(env, algo_config(compose("train", ["experiment=fast"]).algo), "state")
     values = []
     for data in (batch, per_uav(batch)):
         torch.manual_seed(3)  # the same draws, in the same order: UAV-major either way

@@ -15,7 +15,7 @@ from torchrl.collectors import Collector
 from flock_torchrl import FlockingEnv
 from flock_torchrl.config import ConfigError, TrainConfig
 from flock_torchrl.run.batches import AgentwiseDone
-from flock_torchrl.run.host_reads import HostReads
+from benchmarks.counting import HostReads
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.trainer import make_train_config
 from flock_torchrl.world.step import WHOLE_WARMUP

@@ -182,7 +182,7 @@ def test_compiled_learner_is_its_eager_twin():
     """compile=true changes the speed, not the learning: a few SAC updates agree with eager
     ones up to float round-off, and the compiled learner saves and restores its state."""
     from flock_torchrl.config import algo_config, compose
-    from flock_torchrl.policies.learners import SACLearner
+    from flock_torchrl.policies.learners import OffPolicyLearner
     from benchmarks.throughput import replay_batches
 
     env, batches = replay_batches(128, 3)
@@ -190,12 +190,12 @@ def test_compiled_learner_is_its_eager_twin():
     learners = []
     for compile in (False, True):
         torch.manual_seed(0)
-        learner = SACLearner(env, cfg, "state", compile=compile)
+        learner = OffPolicyLearner(env, cfg, "state", compile=compile)
         for batch in batches:
             torch.manual_seed(1)
             learner.update(batch.clone())
         learners.append(learner)
-    eager, compiled = (dict(x.actor.state_dict()) for x in learners)
+    eager, compiled = (x.actor_state(0) for x in learners)
     for key, value in eager.items():
         assert torch.allclose(value, compiled[key], atol=1e-5), key
     state = learners[1].state_dict()
@@ -241,13 +241,32 @@ def test_two_compiled_learners_of_different_sizes_share_a_process():
     import dataclasses
 
     from flock_torchrl.config import algo_config, compose
-    from flock_torchrl.policies.learners import SACLearner
+    from flock_torchrl.policies.learners import OffPolicyLearner
     from benchmarks.throughput import replay_batches
 
     env, batches = replay_batches(128, 2)
     cfg = algo_config(compose("train", ["experiment=paper"]).algo)
     for hidden in (64, 32):
-        learner = SACLearner(env, dataclasses.replace(cfg, hidden=hidden), "state", compile=True)
+        learner = OffPolicyLearner(env, dataclasses.replace(cfg, hidden=hidden), "state", compile=True)
         for batch in batches:
             stats = learner.update(batch.clone())
         assert torch.isfinite(stats["loss_qvalue"])
+
+
+def test_the_training_progress_off_a_terminal_is_lines_to_a_whole_batch_and_rated_after_the_random_frames():
+    """Off a terminal (a redirected log) the progress is a line now and then, no carriage return;
+    its total is the budget rounded up to whole batches (8000 frames of 256 collect 8192), and its
+    rate counts the frames after the random ones from when they began."""
+    from flock_torchrl.run.timing import Progress
+
+    lines = []
+    progress = Progress(8000, {"frames": 0}, "Policy3-G seed 0", per_batch=256, random_frames=512, every=0.0,
+                        write=lines.append)
+    assert progress.bar.disable and progress.total == 8192
+    for frames in range(256, 8193, 256):
+        progress.update({"frames": frames, "episodes": frames // 100}, {"train/success_rate": 0.5})
+        if frames == 512:
+            assert progress.since[1] == 512  # the rate counts the frames after the random ones, from then on
+    progress.close()
+    assert len(lines) == 32 and not any("\r" in line for line in lines)
+    assert lines[-1].startswith("[Policy3-G seed 0] 8192/8192 (100 %) frames") and "success 0.50" in lines[-1]

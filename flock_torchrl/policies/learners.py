@@ -1,14 +1,15 @@
-"""The three learners, wired from TorchRL parts only (no hand-written losses).
+"""The learners, wired from TorchRL parts only (no hand-written losses): SAC and DDPG for K members
+(:class:`OffPolicyLearner`; K = 1 a solo run), PPO for one.
 
-Each learner owns its networks, TorchRL loss module, optimiser and target updater, and
-exposes the same small surface to the trainer:
+Each learner owns its networks, TorchRL loss module, optimiser and target updates, and exposes
+the same small surface to the trainer (:class:`flock_torchrl.run.parts.Learner`):
 
-* ``collector_policy`` — the module the collector runs (with exploration);
-* ``actor`` — the policy to evaluate and ship (deterministic under
-  ``ExplorationType.DETERMINISTIC``);
+* ``collector_policy`` — the module the collector runs (with exploration), over every member's worlds;
+* ``actor`` — the network a member's policy is (``actor_state(k)``: member k's weights, what it ships;
+  deterministic under ``ExplorationType.DETERMINISTIC``);
 * ``off_policy`` — whether transitions go through a replay buffer;
 * ``update(batch) -> dict[str, Tensor]`` — one gradient step (off-policy) or one PPO pass
-  (on-policy); the statistics stay tensors, so an update never waits on a ``.item()``;
+  (on-policy); the statistics stay tensors (``[K]`` per member), so an update never waits on a ``.item()``;
 * ``state_dict() / load_state_dict()`` — everything a checkpoint needs.
 
 Speed: one Adam per learner with a parameter group per network (each its own learning rate,
@@ -29,16 +30,19 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Sequence
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
+from torch import nn
 from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import ClipPPOLoss, DDPGLoss, SACLoss, SoftUpdate, ValueEstimators
 
 from ..capture import captured
 from ..config import DDPGConfig, PPOConfig, SACConfig
+from .members import MemberPolicy, clip_per_member, for_members
 from .models import ACTION, LOG_PROB, SamplingActor, make_actor, make_qvalue, make_value
 
 # PPO normalises advantages over all UAVs of the batch on purpose (one shared policy): TorchRL's
@@ -118,44 +122,169 @@ def check_finite(losses: dict[str, torch.Tensor]) -> None:
         raise FloatingPointError(f"{name} is {value.item()}: training diverged")
 
 
-class _OffPolicy:
-    """What SAC and DDPG share: one gradient step over the summed losses (they touch disjoint
-    parameter sets), gradient clipping per network, then the soft target update.
+@dataclass
+class Parts:
+    """One member's modules, built from the env's specs (what an update of it reads)."""
 
-    Uncaptured, a non-finite loss stops the update before the optimiser steps; captured, the
-    step runs whole and :meth:`check` reports it later (the run then stops before its next
-    checkpoint, so the last good checkpoint is kept either way)."""
+    actor: Any                    # the policy it ships
+    loss: Any                     # TorchRL's loss module (its parameters and targets: the member's state)
+    collector_policy: Any         # what the collector acts with
+    exploration: Any = None       # DDPG's additive noise (shared by the members; annealed by frames)
+    trained: tuple[str, ...] = () # the loss module's trained parameter sets, in the optimiser's order
+    targets: tuple[str, ...] = () # the networks whose targets follow them (SoftUpdate's pairs)
+    terms: dict[str, str] = field(default_factory=dict)   # our loss term -> the loss module's key
+    stats: tuple[str, ...] = ()   # further values of the loss module's output logged per update
+
+
+def sac_parts(env, cfg: SACConfig, critic_input: str) -> Parts:
+    """SAC (paper Sec. III-C, Algorithm 1): twin Q, automatic temperature, soft targets."""
+    actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth)
+    qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
+    loss = SACLoss(actor_network=actor, qvalue_network=qvalue, num_qvalue_nets=cfg.num_qvalue_nets,
+                   loss_function=cfg.loss_function, alpha_init=cfg.alpha_init, target_entropy=cfg.target_entropy,
+                   action_spec=env.full_action_spec_unbatched[ACTION], delay_qvalue=True)
+    loss.set_keys(action=ACTION, state_action_value=("agents", "state_action_value"), log_prob=LOG_PROB,
+                  **AGENT_KEYS)
+    # The estimator's discount on the env's device: moved lazily inside the update, it would be a
+    # host-to-device copy that a CUDA graph cannot record (and a functional call would undo).
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma, device=env.device)
+    # SACLoss turns its target entropy into a buffer on first use; do it here, outside any
+    # compiled region (traced, the conversion is lost and state_dict() fails later).
+    loss.target_entropy  # noqa: B018
+    SoftUpdate(loss, tau=cfg.tau)  # TorchRL's pairing of targets; the learner updates them itself, in place
+    return Parts(actor, loss, SamplingActor(actor),  # the actor's draws, without its per-step overhead
+                 trained=("actor_network_params", "qvalue_network_params", "log_alpha"), targets=("qvalue_network",),
+                 terms={"loss_actor": "loss_actor", "loss_qvalue": "loss_qvalue", "loss_alpha": "loss_alpha"},
+                 stats=("alpha", "entropy"))
+
+
+def ddpg_parts(env, cfg: DDPGConfig, critic_input: str) -> Parts:
+    """DDPG (PolicyD-G): deterministic tanh actor, Q critic, target networks, Gaussian exploration."""
+    actor = make_actor(env, stochastic=False, hidden=cfg.hidden, depth=cfg.depth)
+    qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
+    exploration = AdditiveGaussianModule(
+        spec=env.full_action_spec_unbatched[ACTION], sigma_init=cfg.noise_sigma, sigma_end=cfg.noise_sigma_end,
+        annealing_num_steps=max(cfg.noise_anneal_frames, 1), action_key=ACTION)
+    loss = DDPGLoss(actor_network=actor, value_network=qvalue, loss_function=cfg.loss_function,
+                    delay_actor=True, delay_value=True)
+    loss.set_keys(state_action_value=("agents", "state_action_value"), **AGENT_KEYS)
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma, device=env.device)
+    SoftUpdate(loss, tau=cfg.tau)  # TorchRL's pairing of targets; the learner updates them itself, in place
+    return Parts(actor, loss, TensorDictSequential(actor, exploration), exploration,
+                 trained=("actor_network_params", "value_network_params"), targets=("actor_network", "value_network"),
+                 terms={"loss_actor": "loss_actor", "loss_qvalue": "loss_value"})
+
+
+PARTS = {"sac": sac_parts, "ddpg": ddpg_parts}
+
+
+class OffPolicyLearner:
+    """SAC or DDPG for K members (``seeds``; K = 1: a solo run), trained as one.
+
+    Each member has its own networks, target networks, entropy temperature (SAC), optimiser state
+    and replay buffer rows; their parameters are stacked along a leading member dimension and
+    TorchRL's own loss module (``SACLoss``, ``DDPGLoss``) is called once per update, under
+    ``torch.vmap`` over that dimension for K > 1 (the members' fixed per-call costs paid once), as it
+    is for one member. Members share no value: a member's gradients come from its own loss alone, one
+    Adam steps every member elementwise (what K Adams would do), the target update is elementwise
+    (SoftUpdate's arithmetic). What they share is the order of the draws from torch's generator:
+    every draw has a fixed shape (``[K, ...]``, one slice per member), so no member's data or weights
+    change what another member draws.
+
+    Initial weights: member 0 draws from torch's global generator exactly as a solo run of
+    ``seeds[0]`` does (the trainer seeds it); member k from a generator seeded ``seeds[k]``, so its
+    initial networks are those of a solo run with that seed; later draws are shared, so member k > 0
+    trains as a seed of its own, not as the solo run of ``seeds[k]``.
+
+    ``update(batch)`` takes ``[batch, K]`` transitions (member k's in column k; ``[batch]`` for one
+    member) and returns per-member statistics ``[K]``: one gradient step over the summed losses (they
+    touch disjoint parameter sets), gradient clipping per network and member, the soft target
+    update. Uncaptured, a non-finite loss stops the update before the optimiser steps; captured
+    (``cudagraphs``: the whole step one function without a host read, ``flock_torchrl.capture``),
+    the step runs whole and :meth:`check` reports it later (the run stops before its next
+    checkpoint, so the last good checkpoint is kept either way). ``compile`` (one member): the loss
+    module's forward ``torch.compile`` d (:func:`compiled`), its eager twin otherwise.
+    """
 
     off_policy = True
-    cfg: Any
-    actor_params: list
-    q_params: list
-    optimizer: torch.optim.Optimizer
-    target_updater: SoftUpdate
-    cudagraphs: bool = False
 
-    def on_frames(self, frames: int) -> None:
-        """Called with the frames of every collected batch; SAC has nothing to anneal (DDPG does)."""
+    def __init__(self, env, algo_cfg, critic_input: str, seeds: Sequence[int] = (0,), compile: bool = False,
+                 cudagraphs: bool = False) -> None:
+        if compile and len(seeds) > 1:
+            raise ValueError("compile: several members' update runs eagerly (torch.vmap over them); use compile=false "
+                             "or compile=step")
+        self.cfg, self.members = algo_cfg, len(seeds)
+        build = PARTS[algo_cfg.name]
+        members = [build(env, algo_cfg, critic_input)]
+        for seed in seeds[1:]:
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(int(seed))
+                members.append(build(env, algo_cfg, critic_input))
+        self.parts = parts = members[0]
+        self.loss, self.actor, self.exploration = parts.loss, parts.actor, parts.exploration
+        if self.members == 1:  # views of the member's own tensors: its modules hold its trained weights
+            stacked = TensorDict.from_module(parts.loss).detach().unsqueeze(0)
+        else:
+            stacked = torch.stack([TensorDict.from_module(m.loss).detach() for m in members]).clone()
+        leaves: dict[str, list[torch.Tensor]] = {}
+        for key in parts.trained:
+            sub = stacked.get(key)
+            if isinstance(sub, torch.Tensor):
+                param = nn.Parameter(sub)
+                stacked.set(key, param)
+                leaves[key] = [param]
+            else:
+                sub = sub.apply(nn.Parameter)
+                stacked.set(key, sub)
+                leaves[key] = list(sub.values(True, True))
+        self.params = stacked
+        lrs = {"actor_network_params": algo_cfg.lr_actor, "qvalue_network_params": algo_cfg.lr_critic,
+               "value_network_params": algo_cfg.lr_critic, "log_alpha": getattr(algo_cfg, "lr_alpha", None)}
+        self.optimizer = adam([{"params": leaves[k], "lr": lrs[k]} for k in parts.trained], env.device,
+                              capturable=cudagraphs)
+        self._clip_groups = [leaves[k] for k in parts.trained if k != "log_alpha"]
+        # SoftUpdate's own arithmetic: target.lerp_(source, 1 - eps), eps = 1 - tau.
+        self._target_weight = 1 - (1 - algo_cfg.tau)
+        self._target_pairs = [(stacked.get(f"{n}_params"), stacked.get(f"target_{n}_params")) for n in parts.targets]
+        if self.members == 1:  # the member's own policy (also what a multi-process collector's workers copy)
+            self.collector_policy = parts.collector_policy
+        else:
+            acting = parts.collector_policy if isinstance(parts.collector_policy, SamplingActor) else None
+            self.collector_policy = MemberPolicy(self.actor, stacked.get("actor_network_params"), self.members,
+                                                 after=self.exploration, acting=acting)
+        self.loss_fn = compiled(self.loss, compile)
 
-    def _terms(self, losses: TensorDictBase) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
+        def member_losses(p: TensorDictBase, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+            with p.to_module(self.loss):
+                out = self.loss_fn(batch)
+            return {**{ours: out[theirs] for ours, theirs in parts.terms.items()}, **{k: out[k] for k in parts.stats}}
 
-    def _stats(self, losses: TensorDictBase, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        raise NotImplementedError
-
-    def _setup_update(self, device: torch.device, cudagraphs: bool) -> None:
+        self._losses = for_members(member_losses, self.members, 1)
         self.cudagraphs = bool(cudagraphs)
-        self.finite = FiniteLosses(tuple(self._term_names), device)
-        self._update = captured(self._captured_step, device, self.cudagraphs)
+        self.finite = FiniteLosses(tuple(parts.terms), env.device, self.members if self.members > 1 else None)
+        self._update = captured(self._captured_step, env.device, self.cudagraphs)
+
+    # ------------------------------------------------------------------ training
+    def on_frames(self, frames: int) -> None:
+        """Called with the frames each member collected; DDPG anneals its exploration noise by them."""
+        if self.exploration is not None:
+            self.exploration.step(frames)
 
     def update(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One gradient step of every member on its column of ``batch [batch, K]`` (``[batch]``: one member's)."""
+        if batch.ndim == 1:
+            batch = batch.unsqueeze(1)
         if self.cudagraphs:
             return self._update(batch)
-        losses = self.loss_fn(batch)
-        terms = self._terms(losses)
-        check_finite(terms)
-        self._gradient_step(terms)
-        return self._stats(losses, terms)
+        out = self._losses(self.params, batch)
+        terms = {k: out[k] for k in self.parts.terms}
+        values = torch.stack([v.detach() for v in terms.values()])
+        if not bool(torch.isfinite(values).all()):
+            name, member = next((k, int((~torch.isfinite(v)).nonzero()[0, 0])) for k, v in terms.items()
+                                if not torch.isfinite(v).all())
+            of = f" of member {member}" if self.members > 1 else ""
+            raise FloatingPointError(f"{name}{of} is {terms[name][member].item()}: training diverged")
+        return self._step(out, terms)
 
     def check(self) -> None:
         """Raise ``FloatingPointError`` if a captured update met a non-finite loss."""
@@ -163,121 +292,95 @@ class _OffPolicy:
 
     def _captured_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One whole update without a host synchronisation (what ``CudaGraphModule`` records)."""
-        losses = self.loss_fn(batch)
-        terms = self._terms(losses)
+        out = self._losses(self.params, batch)
+        terms = {k: out[k] for k in self.parts.terms}
         self.finite.record(terms)
-        self._gradient_step(terms)
-        return self._stats(losses, terms)
+        return self._step(out, terms)
 
-    def _gradient_step(self, terms: dict[str, torch.Tensor]) -> None:
+    def _step(self, out: dict[str, torch.Tensor], terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         self.optimizer.zero_grad(set_to_none=True)
-        sum(terms.values()).backward()
-        _clip(self.actor_params, self.cfg.max_grad_norm)
-        _clip(self.q_params, self.cfg.max_grad_norm)
+        sum(terms.values()).sum().backward()
+        # Each member's gradient norm of the actor and of the critics, before any clipping.
+        norms = {f"grad_norm_{name}": _member_norms(group, self.members)
+                 for name, group in zip(("actor", "critic"), self._clip_groups)}
+        if self.cfg.max_grad_norm > 0:
+            for group in self._clip_groups:
+                if self.members == 1:
+                    _clip(group, self.cfg.max_grad_norm)
+                else:
+                    clip_per_member(group, self.cfg.max_grad_norm)
         self.optimizer.step()
-        self.target_updater.step()
+        with torch.no_grad():
+            for source, target in self._target_pairs:
+                for s, t in zip(source.values(True, True), target.values(True, True)):
+                    t.lerp_(s, self._target_weight)
+        stats = {k: v.detach() for k, v in terms.items()}
+        stats.update({k: out[k].detach() for k in self.parts.stats}, **norms)
+        if self.exploration is not None:
+            stats["sigma"] = self.exploration.sigma.detach().clone().expand(self.members)
+        return stats
 
+    def learning_rates(self) -> dict[str, float]:
+        """The optimiser's step size of each trained part (Table I's lr_pi, lr_Q, lr_alpha)."""
+        names = {"actor_network_params": "actor", "qvalue_network_params": "critic", "value_network_params": "critic",
+                 "log_alpha": "alpha"}
+        return {f"lr_{names[key]}": group["lr"] for key, group in zip(self.parts.trained, self.optimizer.param_groups)}
 
-class SACLearner(_OffPolicy):
-    """SAC (paper Sec. III-C, Algorithm 1): twin Q, automatic temperature, soft targets."""
-
-    _term_names = ("loss_actor", "loss_qvalue", "loss_alpha")
-
-    def __init__(self, env, cfg: SACConfig, critic_input: str, compile: bool = False,
-                 cudagraphs: bool = False) -> None:
-        self.cfg = cfg
-        self.actor = make_actor(env, stochastic=True, hidden=cfg.hidden, depth=cfg.depth)
-        self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
-        self.collector_policy = SamplingActor(self.actor)  # the actor's draws, without its per-step overhead
-        self.loss = SACLoss(
-            actor_network=self.actor, qvalue_network=self.qvalue, num_qvalue_nets=cfg.num_qvalue_nets,
-            loss_function=cfg.loss_function, alpha_init=cfg.alpha_init, target_entropy=cfg.target_entropy,
-            action_spec=env.full_action_spec_unbatched[ACTION], delay_qvalue=True,
-        )
-        self.loss.set_keys(action=ACTION, state_action_value=("agents", "state_action_value"),
-                           log_prob=LOG_PROB, **AGENT_KEYS)
-        # The estimator's discount on the env's device: moved lazily inside the update, it would be a
-        # host-to-device copy that a CUDA graph cannot record (and a functional call would undo).
-        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma, device=env.device)
-        self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
-        self.actor_params = list(self.loss.actor_network_params.values(True, True))
-        self.q_params = list(self.loss.qvalue_network_params.values(True, True))
-        self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
-                               {"params": self.q_params, "lr": cfg.lr_critic},
-                               {"params": [self.loss.log_alpha], "lr": cfg.lr_alpha}], env.device,
-                              capturable=cudagraphs)
-        # SACLoss turns its target entropy into a buffer on first use; do it here, outside any
-        # compiled region (traced, the conversion is lost and state_dict() fails later).
-        self.loss.target_entropy  # noqa: B018
-        self.loss_fn = compiled(self.loss, compile)
-        self._setup_update(env.device, cudagraphs)
-
-    def _terms(self, losses: TensorDictBase) -> dict[str, torch.Tensor]:
-        return {k: losses[k] for k in self._term_names}
-
-    def _stats(self, losses: TensorDictBase, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return {**{k: v.detach() for k, v in terms.items()}, "alpha": losses["alpha"].detach(),
-                "entropy": losses["entropy"].detach()}
+    # ------------------------------------------------------------------ members and checkpoints
+    def actor_state(self, member: int) -> dict[str, torch.Tensor]:
+        """Member ``member``'s actor ``state_dict`` (loadable into ``make_actor``'s module)."""
+        with self.params.get("actor_network_params")[member].to_module(self.actor):
+            return {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
+        """One member's: its loss module's and its optimiser's state (the solo run's checkpoint);
+        several members': their stacked parameters and the one optimiser's state."""
+        if self.members == 1:
+            with self.params[0].to_module(self.loss):
+                loss = {k: v.detach().clone() for k, v in self.loss.state_dict().items()}
+            state = {"loss": loss, "optimizer": _member_axis(self.optimizer.state_dict(), torch.squeeze)}
+        else:
+            state = {"params": self.params.detach().clone().to_dict(), "optimizer": self.optimizer.state_dict()}
+        if self.exploration is not None:
+            state["exploration"] = self.exploration.state_dict()
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.loss.load_state_dict(state["loss"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        if self.members == 1:
+            with torch.no_grad(), self.params[0].to_module(self.loss):
+                self.loss.load_state_dict(state["loss"])
+            self.optimizer.load_state_dict(_member_axis(state["optimizer"], torch.unsqueeze))
+        else:
+            saved = TensorDict(state["params"], batch_size=[self.members])
+            if saved.batch_size != self.params.batch_size:
+                raise ValueError("the saved population has another number of members")
+            with torch.no_grad():
+                for key, value in saved.items(True, True):
+                    self.params.get(key).copy_(value)
+            self.optimizer.load_state_dict(state["optimizer"])
+        if self.exploration is not None:
+            self.exploration.load_state_dict(state["exploration"])
 
 
-class DDPGLearner(_OffPolicy):
-    """DDPG (PolicyD-G): deterministic tanh actor, Q critic, target networks, Gaussian exploration."""
+def _member_norms(params: list[torch.Tensor], members: int) -> torch.Tensor:
+    """The norm of each member's slice of every gradient of ``params`` together, ``[members]``."""
+    norms = [p.grad.detach().reshape(members, -1).norm(dim=1) for p in params if p.grad is not None]
+    return torch.stack(norms).norm(dim=0) if norms else params[0].new_zeros(members)
 
-    _term_names = ("loss_actor", "loss_qvalue")
 
-    def __init__(self, env, cfg: DDPGConfig, critic_input: str, compile: bool = False,
-                 cudagraphs: bool = False) -> None:
-        self.cfg = cfg
-        self.actor = make_actor(env, stochastic=False, hidden=cfg.hidden, depth=cfg.depth)
-        self.qvalue = make_qvalue(env, critic_input, hidden=cfg.hidden, depth=cfg.depth)
-        self.exploration = AdditiveGaussianModule(
-            spec=env.full_action_spec_unbatched[ACTION], sigma_init=cfg.noise_sigma, sigma_end=cfg.noise_sigma_end,
-            annealing_num_steps=max(cfg.noise_anneal_frames, 1), action_key=ACTION,
-        )
-        self.collector_policy = TensorDictSequential(self.actor, self.exploration)
-        self.loss = DDPGLoss(actor_network=self.actor, value_network=self.qvalue, loss_function=cfg.loss_function,
-                             delay_actor=True, delay_value=True)
-        self.loss.set_keys(state_action_value=("agents", "state_action_value"), **AGENT_KEYS)
-        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=cfg.gamma, device=env.device)
-        self.target_updater = SoftUpdate(self.loss, tau=cfg.tau)
-        self.actor_params = list(self.loss.actor_network_params.values(True, True))
-        self.q_params = list(self.loss.value_network_params.values(True, True))
-        self.optimizer = adam([{"params": self.actor_params, "lr": cfg.lr_actor},
-                               {"params": self.q_params, "lr": cfg.lr_critic}], env.device, capturable=cudagraphs)
-        self.loss_fn = compiled(self.loss, compile)
-        self._setup_update(env.device, cudagraphs)
-
-    def on_frames(self, frames: int) -> None:
-        """Anneal the exploration noise by the frames just collected."""
-        self.exploration.step(frames)
-
-    def _terms(self, losses: TensorDictBase) -> dict[str, torch.Tensor]:
-        return {"loss_actor": losses["loss_actor"], "loss_qvalue": losses["loss_value"]}
-
-    def _stats(self, losses: TensorDictBase, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return {**{k: v.detach() for k, v in terms.items()}, "sigma": self.exploration.sigma.detach().clone()}
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"loss": self.loss.state_dict(), "exploration": self.exploration.state_dict(),
-                "optimizer": self.optimizer.state_dict()}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.loss.load_state_dict(state["loss"])
-        self.exploration.load_state_dict(state["exploration"])
-        self.optimizer.load_state_dict(state["optimizer"])
+def _member_axis(state: dict[str, Any], move) -> dict[str, Any]:
+    """An optimiser ``state_dict`` with the member dimension of one member taken off
+    (``torch.squeeze``) or put on (``torch.unsqueeze``) its per-parameter tensors (not ``step``)."""
+    return {"state": {i: {k: v if k == "step" else move(v, 0) for k, v in s.items()}
+                      for i, s in state["state"].items()},
+            "param_groups": state["param_groups"]}
 
 
 class PPOLearner:
-    """PPO (PolicyP-G): clipped objective, GAE on the per-UAV value ``V(x_i)``."""
+    """PPO (PolicyP-G): clipped objective, GAE on the per-UAV value ``V(x_i)``; one member."""
 
     off_policy = False
+    members = 1
 
     def on_frames(self, frames: int) -> None:
         """Called with the frames of every collected batch: nothing to anneal."""
@@ -333,6 +436,14 @@ class PPOLearner:
     def check(self) -> None:
         """Every PPO update checks its losses itself."""
 
+    def learning_rates(self) -> dict[str, float]:
+        """The optimiser's step size."""
+        return {"lr": self.optimizer.param_groups[0]["lr"]}
+
+    def actor_state(self, member: int = 0) -> dict[str, torch.Tensor]:
+        """The actor's ``state_dict`` (its one member's)."""
+        return {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
+
     def state_dict(self) -> dict[str, Any]:
         return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
 
@@ -341,8 +452,12 @@ class PPOLearner:
         self.optimizer.load_state_dict(state["optimizer"])
 
 
-LEARNERS = {"sac": SACLearner, "ddpg": DDPGLearner, "ppo": PPOLearner}
-
-
-def make_learner(env, algo_cfg, critic_input: str, compile: bool = False, cudagraphs: bool = False):
-    return LEARNERS[algo_cfg.name](env, algo_cfg, critic_input, compile=compile, cudagraphs=cudagraphs)
+def make_learner(env, algo_cfg, critic_input: str, seeds: Sequence[int] = (0,), compile: bool = False,
+                 cudagraphs: bool = False):
+    """The learner of ``algo_cfg``: SAC's or DDPG's for the members ``seeds`` (:class:`OffPolicyLearner`),
+    or PPO's (one member)."""
+    if algo_cfg.name == "ppo":
+        if len(seeds) > 1:
+            raise ValueError(f"a population trains sac or ddpg, not {algo_cfg.name}")
+        return PPOLearner(env, algo_cfg, critic_input, compile=compile, cudagraphs=cudagraphs)
+    return OffPolicyLearner(env, algo_cfg, critic_input, seeds, compile=compile, cudagraphs=cudagraphs)

@@ -8,7 +8,6 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from ..config import TrainConfig
-from .population import PopulationTraining
 from .run_folder import RunLock, clean_stale_temporaries
 from .setup import hydra_output_dir, prepare
 from .trainer import Training, TrainResult
@@ -31,10 +30,9 @@ def train(cfg: TrainConfig | DictConfig | dict, run_dir: str | os.PathLike | Non
         cfg = TrainConfig.from_config(OmegaConf.create(cfg) if isinstance(cfg, dict) else cfg)
     run_dir = Path(run_dir) if run_dir is not None else hydra_output_dir()
     prepare(cfg, run_dir)
-    runner = PopulationTraining if cfg.population > 1 else Training
     with RunLock(run_dir):
         clean_stale_temporaries(run_dir)
-        return runner(cfg, run_dir).run()
+        return Training(cfg, run_dir).run()
 
 
 __all__ = ["train"]

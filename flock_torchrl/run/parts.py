@@ -23,6 +23,7 @@ from ..io import write_failure
 from ..policies.checkpoint import CheckpointError, save_checkpoint
 from .. import capture
 from ..world.env import FlockingEnv
+from ..world.population import PopulationEnv
 from .batches import AgentwiseDone
 from .signals import ignore_stop_signals, start_workers
 from .timing import split_line
@@ -89,12 +90,19 @@ def make_env(cfg: TrainConfig, num_envs: int, device: torch.device, seed: int, p
 
 def make_envs(cfg: TrainConfig, device: torch.device) -> tuple[list[FlockingEnv], Any]:
     """The main process's training envs (one per swarm size and kind of world when they are
-    mixed, the worlds split evenly, seeds ``1000 * seed + i``), and the factory of a worker's env (by seed)."""
+    mixed, the worlds split evenly, seeds ``1000 * seed + i``; for a population, each a
+    :class:`~flock_torchrl.world.population.PopulationEnv` of every member's worlds), and the
+    factory of a worker's env (by seed)."""
     exp = cfg.experiment
     factory = functools.partial(make_env, cfg, exp.num_envs // exp.workers, device, parent=os.getpid())
+    share = exp.num_envs // len(cfg.train_scenarios)
+    if cfg.population > 1:  # each member's worlds of size i draw from a generator seeded as its solo run's
+        return [PopulationEnv(scenario, cfg.population, share, [s * 1000 + i for s in cfg.seeds], device=device,
+                              compile_step=cfg.compile_step, check_actions=False, reset_pool=cfg.reset_pool,
+                              capture_step=cfg.cudagraphs)
+                for i, scenario in enumerate(cfg.train_scenarios)], factory
     if not (exp.swarm_sizes or exp.train_mix):
         return [factory(cfg.seed * 1000)], factory
-    share = exp.num_envs // len(cfg.train_scenarios)
     return [make_env(cfg, share, device, cfg.seed * 1000 + i, os.getpid(), scenario)
             for i, scenario in enumerate(cfg.train_scenarios)], factory
 
@@ -114,7 +122,8 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
     after every batch); the collector's env, policy and batch share one device, so it has no
     copy between devices to synchronise."""
     exp = cfg.experiment
-    kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 else exp.num_envs) * steps, total_frames=-1,
+    kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 or cfg.population > 1 else exp.num_envs) * steps,
+                  total_frames=-1,
                   device=device, init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
                   auto_register_policy_transforms=False, cudagraph_policy=policy_capture(cfg))
     def single(env: FlockingEnv) -> Collector:

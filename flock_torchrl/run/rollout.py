@@ -251,7 +251,7 @@ def evaluate_members(actor: torch.nn.Module, params: TensorDictBase, scenario: s
     until that layout has finished for every member, and then leaves the batch. The trajectories
     are :func:`evaluate`'s up to the float round-off of the batched actor (vmapped over members)
     and, where a scenario draws per step (S4's noise), other draws."""
-    from ..policies.population import PopulationPolicy
+    from ..policies.members import MemberPolicy
 
     start = time.perf_counter()
     k = int(params.batch_size[0])
@@ -259,7 +259,7 @@ def evaluate_members(actor: torch.nn.Module, params: TensorDictBase, scenario: s
     handle = resolve(actor, device=str(device))[0]
     one = policy_env(handle, scenario, None, n_episodes, seed, device)
     limit = one.cfg.max_steps
-    policy = PopulationPolicy(actor, params, k)
+    policy = MemberPolicy(actor, params, k)
     members = torch.arange(k, device=one.device).unsqueeze(-1)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = one.reset()

@@ -25,6 +25,7 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
@@ -37,6 +38,21 @@ def say(line: str) -> None:
     newline apart, so the jobs of a joblib sweep, which share one stderr, ran lines together."""
     sys.stderr.write(line + "\n")
     sys.stderr.flush()
+
+
+def job_tag() -> str:
+    """``[<job's folder>] `` in a job of a joblib sweep (whose jobs share one stdout and stderr, so
+    their lines interleave), else nothing: the job's output folder under the sweep's."""
+    if not APP_SIGNALS.in_sweep_worker():
+        return ""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        hydra = HydraConfig.get()
+        folder = Path(hydra.runtime.output_dir)
+        return f"[{folder.relative_to(Path(hydra.sweep.dir).resolve()) if folder.is_absolute() else folder}] "
+    except (ValueError, AttributeError):
+        return f"[job {os.getpid()}] "
 
 
 class Stopped(BaseException):

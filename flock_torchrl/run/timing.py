@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
 from contextlib import contextmanager
 from typing import Any, Iterable, Iterator
@@ -78,9 +79,14 @@ class TimeSplit(dict):
 
 def rates(split: dict[str, float], counters: dict[str, Any], members: int = 1, prefix: str = "perf/"
           ) -> dict[str, float]:
-    """Updates and frames per second of a loop's own time (times ``members``, a population's)."""
-    return {f"{prefix}updates_per_s": members * counters["updates"] / max(split["sampling"] + split["update"], 1e-9),
-            f"{prefix}frames_per_s": members * counters["frames"] / max(split["collection"], 1e-9)}
+    """Updates and frames per second of a loop's own time: the process's (every member's, for
+    ``members``), and for several members each one's (``member_...``)."""
+    updates = counters["updates"] / max(split["sampling"] + split["update"], 1e-9)  # each member's
+    frames = counters["frames"] / max(split["collection"], 1e-9)
+    out = {f"{prefix}updates_per_s": members * updates, f"{prefix}frames_per_s": members * frames}
+    if members > 1:
+        out.update({f"{prefix}member_updates_per_s": updates, f"{prefix}member_frames_per_s": frames})
+    return out
 
 
 def split_line(split: dict[str, float]) -> str:
@@ -100,20 +106,48 @@ def seeds_label(seeds: list[int]) -> str:
 
 
 class Progress:
-    """tqdm bar over frames."""
+    """A training's progress over frames (each member's). On a terminal, a tqdm bar; off one (a
+    redirected log), a line every ``every`` seconds instead, as an evaluation's progress is, with no
+    carriage return in the file. Its total is the frame budget rounded up to whole batches of
+    ``per_batch`` frames (what the run collects before it stops), and its rate, so its time left,
+    counts only the frames after the first ``random_frames`` (collected with random actions and no
+    update: several times faster than the rest)."""
 
-    def __init__(self, total: int, counters: dict, description: str) -> None:
+    def __init__(self, total: int, counters: dict, description: str, per_batch: int = 1, random_frames: int = 0,
+                 every: float = 60.0, write: Any = None) -> None:
         from tqdm.auto import tqdm
 
-        self.bar = tqdm(total=total or None, initial=counters["frames"], unit="frame", dynamic_ncols=True,
-                        desc=description)
-        self.last = counters["frames"]
+        self.total = -(-total // per_batch) * per_batch if total else None
+        self.random_frames, self.every, self.description = random_frames, every, description
+        self.last, self.learning = counters["frames"], counters["frames"] >= random_frames
+        self.bar = tqdm(total=self.total, initial=counters["frames"], unit="frame", dynamic_ncols=True,
+                        desc=description, smoothing=0, disable=None)
+        self._write = write or (lambda line: print(line, file=sys.stderr, flush=True))
+        self.since = (time.perf_counter(), counters["frames"])  # where the rate is measured from
+        self.printed = time.perf_counter()
 
     def update(self, counters: dict, log: dict[str, Any]) -> None:
-        self.bar.update(counters["frames"] - self.last)
-        self.last = counters["frames"]
-        self.bar.set_postfix(episodes=counters["episodes"], reward=f"{log.get('train/episode_reward', math.nan):.2f}",
-                             success=f"{log.get('train/success_rate', math.nan):.2f}", refresh=False)
+        frames = counters["frames"]
+        if not self.learning and frames >= self.random_frames:  # the rate from here on: learning frames
+            self.learning, self.since = True, (time.perf_counter(), frames)
+            if not self.bar.disable:  # tqdm's rate: from the frames and the time the learning began at
+                self.bar.update(frames - self.last)
+                self.last = self.bar.initial = frames
+                self.bar.start_t = time.time()
+        self.bar.update(frames - self.last)
+        self.last = frames
+        shown = dict(episodes=counters["episodes"], reward=f"{log.get('train/episode_reward', math.nan):.2f}",
+                     success=f"{log.get('train/success_rate', math.nan):.2f}")
+        self.bar.set_postfix(refresh=False, **shown)
+        now = time.perf_counter()
+        if self.bar.disable and now - self.printed >= self.every:
+            self.printed = now
+            start, done = self.since
+            rate = (frames - done) / max(now - start, 1e-9)
+            left = f", about {(self.total - frames) / rate / 60:.0f} min left" if self.total and rate > 0 else ""
+            share = f"/{self.total} ({100 * frames / self.total:.0f} %)" if self.total else ""
+            self._write(f"[{self.description}] {frames}{share} frames, {rate:.0f} frames/s{left}; "
+                        + ", ".join(f"{k} {v}" for k, v in shown.items()))
 
     def write(self, message: str) -> None:
         self.bar.write(message)

@@ -1,19 +1,27 @@
-"""The training loop: TorchRL collector -> replay buffer -> learner, with evaluation, logging
-and exact, atomic, digest-checked checkpoints (``train(cfg)``, :mod:`.launch`, is its entry point).
+"""The training loop: TorchRL collector -> replay buffer -> learner, for K members trained as one
+(``population``; K = 1 the solo run), with evaluation, logging and exact, atomic, digest-checked
+checkpoints (``train(cfg)``, :mod:`.launch`, is its entry point).
 
-The checks before a run are :mod:`.setup`'s, its parts :mod:`.parts`' (collectors whose
-``postproc`` gives per-UAV done flags, :mod:`.batches`), the stop signals :mod:`.signals`', the
-schedule :mod:`.schedule`'s, the run folder :mod:`.run_folder`'s, the time split :mod:`.timing`'s.
-A run survives its users (README, "Training"): a second process on its folder is refused; a
-stop signal finishes the update, writes a checkpoint and exits 128 + the signal, printing the
-command that resumes; the final evaluation runs after a checkpoint, and a resumed run counts as
-finished only once its last evaluation is at its last frame; ``resume`` refuses any changed
-setting but the ``resumable`` keys, and cuts the logs back to the checkpoint, so a resumed
-run's checkpoints and logs equal an uninterrupted run's.
+The checks before a run are :mod:`.setup`'s, its parts :mod:`.parts`' (envs, collectors whose
+``postproc`` gives per-UAV done flags, the replay buffer), the members' bookkeeping
+:mod:`.members`', the stop signals :mod:`.signals`', the schedule :mod:`.schedule`'s, the run
+folder :mod:`.run_folder`'s, the time split :mod:`.timing`'s. A run survives its users (README,
+"Training"): a second process on its folder is refused; a stop signal finishes the update,
+writes a checkpoint and exits 128 + the signal, printing the command that resumes; the final
+evaluation runs after a checkpoint, and a resumed run counts as finished only once its last
+evaluation is at its last frame; ``resume`` refuses any changed setting but the ``resumable``
+keys, and cuts the logs back to the checkpoint, so a resumed run's checkpoints and logs equal an
+uninterrupted run's.
+
+K members (docs/population.md) share the loop: their worlds are one batch (member-major), the
+learner holds their K parameter sets (:class:`~flock_torchrl.policies.learners.OffPolicyLearner`),
+the replay buffer's rows hold one transition per member, and the counters are each member's (all
+collect alike). One member writes the solo run's files; several, a folder each (:mod:`.members`).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from pathlib import Path
@@ -25,27 +33,32 @@ from tensordict import TensorDictBase
 from ..config import TrainConfig
 from ..policies.checkpoint import LAST
 from ..policies.learners import make_learner
-from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, PendingEpisodes, agentwise_done, episode_rows, per_uav
+from ..policies.members import MemberSampler
+from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, PendingEpisodes, agentwise_done, per_uav
+from .members import Members
 from .parts import (Learner, TrainResult, buffer_state, evaluation_row, make_collectors, make_env, make_envs,
-                    replay_buffer, restore_buffer, restore_rng, rng_state, write_checkpoint)
-from .run_folder import EpisodeLog, logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
+                    replay_buffer, restore_buffer, restore_rng, result_row, rng_state, write_checkpoint)
+from .rollout import evaluate_members
+from .run_folder import logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
 from .schedule import Schedule, evaluated_at_end
 from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra_settings, make_train_config,
                     memory_estimate, prepare, resume_payload)
-from .signals import (SHUTDOWN_TIMEOUT, STOP_SIGNALS, Signals, Stopped, TrainingInterrupted, say, shutdown,
-                      start_resource_tracker)
+from .signals import (SHUTDOWN_TIMEOUT, STOP_SIGNALS, Signals, Stopped, TrainingInterrupted, job_tag, say,
+                      shutdown, start_resource_tracker)
 from .timing import Progress, TimeSplit, rates, seeds_label
 
 
 class Training:
-    """One run: its pieces, its loop, its checkpoints (``train`` is its entry point)."""
+    """One run of K members: its pieces, its loop, its checkpoints (``train`` is its entry point)."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path) -> None:
         self.cfg, self.run_dir = cfg, run_dir
         self.resolved = dataclasses.asdict(cfg)
         self.ckpt_path = run_dir / LAST
         self.counters = {"frames": 0, "episodes": 0, "updates": 0, "iterations": 0, "seconds": 0.0}
-        self.evaluations: list[dict[str, float]] = []
+        self.evaluations: list[dict[str, float]] = []  # the run's (several members: their mean)
+        self.members = Members(list(cfg.seeds), run_dir)
+        self.k = self.members.k
         self.split = TimeSplit(device=cfg.device)
         self.saved_frames = -1            # frames of the last checkpoint this process wrote
         self.start = time.perf_counter()
@@ -62,10 +75,12 @@ class Training:
         self.per_uav = bool(exp.swarm_sizes)                  # the replay buffer holds single UAVs' transitions
         self.envs, factory = make_envs(cfg, device)
         self.env = self.envs[0]
-        self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss,
-                                             cudagraphs=cfg.cudagraphs)
+        self.learner: Learner = make_learner(self.env, cfg.algo, cfg.policy.critic_input, self.members.seeds,
+                                             compile=cfg.compile_loss, cudagraphs=cfg.cudagraphs)
         off_policy = self.learner.off_policy
-        self.buffer = replay_buffer(cfg, 1 if self.per_uav else cfg.scenario.n_uavs, device) if off_policy else None
+        sampler = {"sampler": MemberSampler(self.k)} if self.k > 1 else {}
+        self.buffer = replay_buffer(cfg, 1 if self.per_uav else cfg.scenario.n_uavs, device,
+                                    **sampler) if off_policy else None
         if payload is not None:
             self.learner.load_state_dict(payload["learner"])
             restore_buffer(self.buffer, payload, self.run_dir)
@@ -77,18 +92,22 @@ class Training:
         init_random = max(0, exp.init_random_frames - self.counters["frames"]) if off_policy else 0
         # An off-policy batch is copied into the replay buffer before the next is collected: the
         # collector may overwrite it (an on-policy learner writes its advantages into its batch).
-        self.collectors = make_collectors(cfg, self.envs, factory, self.learner.collector_policy, steps, init_random,
-                                          device, reuse_batch=off_policy)
+        self.collectors = make_collectors(cfg, self.envs, factory, self.learner.collector_policy, steps,
+                                          init_random * self.k, device, reuse_batch=off_policy)
         if payload is not None:
             restore_rng(payload["rng"], device)
         self.meta = checkpoint_meta(cfg, self.env)
+        if self.k > 1:
+            self.meta.update(population=self.k, seeds=list(self.members.seeds))
+        self._eval_actor = copy.deepcopy(self.learner.actor)
+        self._eval_actor.name = self.cfg.policy.name  # what the evaluation's progress calls it
 
     def run(self) -> TrainResult:
         payload = resume_payload(self.cfg, self.resolved, self.run_dir)
         if payload is not None:
             self.counters.update(payload["counters"])
             self.evaluations = list(payload.get("evaluations", []))
-            self._restore(payload)
+            self.members.restore(payload, self.counters)
         schedule = Schedule(self.cfg.experiment).start(self.counters["frames"])
         finished = schedule.finished(self.counters["frames"], self.counters["episodes"], self.counters["seconds"])
         if schedule.done(self.counters, self.evaluations):
@@ -134,20 +153,23 @@ class Training:
             raise
 
     def _consume(self, batches: Sequence[TensorDictBase]) -> dict[str, torch.Tensor]:
-        """Count, log and learn from one batch of each collector (one, unless sizes are mixed)."""
-        frames = sum(batch.numel() for batch in batches)
+        """Count, log and learn from one batch of each collector (one, unless sizes or worlds are mixed)."""
+        frames = sum(batch.numel() for batch in batches) // self.k  # each member's
         self.counters["frames"] += frames
         self.counters["iterations"] += 1
-        for batch in batches:
-            self.pending.add(batch, self.counters["frames"])
+        for env, batch in zip(self.envs, batches):
+            self.pending.add(batch, self.counters["frames"], source=env)
         budget = self.cfg.experiment.max_episodes
-        if budget and self.counters["episodes"] + self.pending.slots >= budget:  # it may be spent: count
+        # Each member holds 1/K of the pending worlds' steps: count when one could spend its budget.
+        if budget and self.members.could_spend(budget, self.pending.slots // self.k):
             self._tally_episodes()
         self.learner.on_frames(frames)
         stats, n_updates = self._learn(batches)
         self.counters["updates"] += n_updates
         if self.cfg.experiment.workers > 1:  # a single collector shares the learner's policy
             self.collectors[0].update_policy_weights_()
+        if budget:
+            self.members.freeze_spent(budget, self.learner, self.counters)
         return stats
 
     def _learn(self, batches: Sequence[TensorDictBase]) -> tuple[dict[str, torch.Tensor], int]:
@@ -171,9 +193,13 @@ class Training:
         return stats, exp.updates_per_batch
 
     def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
-        """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones
-        when the sizes are mixed."""
-        return per_uav(batch) if self.per_uav else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+        """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones when
+        the sizes are mixed; for several members, rows ``[R, K]`` (member k's transitions in column k)."""
+        if self.k == 1:
+            return per_uav(batch) if self.per_uav else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+        if self.per_uav:
+            return per_uav(batch.reshape(self.k, -1), lead=1).transpose(0, 1).contiguous()
+        return batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1).transpose(0, 1).contiguous()
 
     def _update_bucket(self) -> str:
         """Where an update's time goes: a compiled learner's first one in this process compiles."""
@@ -181,65 +207,67 @@ class Training:
         return "compile" if self.cfg.compile_loss and first else "update"
 
     def _tally_episodes(self) -> None:
-        """Write the rows of the episodes pending since the last tally and count them (the loop
-        reads the batches' episodes here, at logging, checkpoints and an episode budget, not
-        after every batch: on a GPU an iteration then never waits for the device)."""
-        for finished in self.pending.flush():
-            rows = episode_rows(finished.values, self.counters["episodes"], finished.frames)
-            self.counters["episodes"] += len(rows)
-            self.episode_log.write(rows)
-            self.recent = (self.recent + [(r[2], bool(r[3])) for r in rows])[-100:]
+        """Write the rows of the episodes pending since the last tally (the loop reads the batches'
+        episodes here, at logging, checkpoints and an episode budget, not after every batch: on a
+        GPU an iteration then never waits for the device)."""
+        self.counters["episodes"] = self.members.tally(self.pending.flush())
 
     # ---------------------------------------------------------------- logs, evaluation
     def _open_logs(self, resumed: bool) -> None:
         truncate_scalar_logs(self.run_dir, self.counters["frames"] if resumed else None)  # fresh: a dead run's go
-        log = self.cfg.logger
+        log, label = self.cfg.logger, seeds_label(self.members.seeds)
         self.logger = make_logger(log.backend, log.project, log.mode, self.run_dir,
-                                  f"{self.cfg.policy.id}_seed{self.cfg.seed}")
+                                  f"{self.cfg.policy.id}_{label.replace(' ', '')}")
         if self.logger is not None:
             self.logger.log_hparams(logger_hparams(self.resolved))
         if self.cfg.progress:
-            self.progress = Progress(self.cfg.experiment.max_frames, self.counters,
-                                     f"{self.cfg.policy.name} {seeds_label(self.cfg.seeds)}")
-        self._open_episode_logs(resumed)
-
-    def _open_episode_logs(self, resumed: bool) -> None:
-        self.episode_log = EpisodeLog(self.run_dir / "episodes.csv", EPISODE_COLUMNS,
-                                      self.counters["episodes"] if resumed else None)
-        # The running means over the last 100 episodes continue from the (cut back) episode log.
-        self.recent = [(row[2], bool(row[3])) for row in self.episode_log.rows()[-100:]]
-
-    def _restore(self, payload: dict) -> None:
-        """What a subclass restores from a checkpoint beyond the counters and evaluations."""
+            exp = self.cfg.experiment
+            off_policy = self.learner.off_policy
+            per_batch = exp.num_envs * (exp.steps_per_batch if off_policy else self.cfg.algo.rollout_steps)
+            self.progress = Progress(exp.max_frames, self.counters, f"{self.cfg.policy.name} {label}", per_batch,
+                                     exp.init_random_frames if off_policy else 0)
+        self.members.open_logs(resumed)
 
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
         self._tally_episodes()
         self.learner.check()  # a captured update's finite-loss flags, read where the host reads anyway
-        log = {f"train/{k}": float(v) for k, v in stats.items()}
-        if self.recent:
-            log["train/episode_reward"] = sum(r for r, _ in self.recent) / len(self.recent)
-            log["train/success_rate"] = sum(s for _, s in self.recent) / len(self.recent)
-        log.update(rates(self.split.settle(), self.counters))
+        log = self.members.training_scalars(stats)
+        log.update({f"train/{name}": lr for name, lr in self.learner.learning_rates().items()})
+        log.update(rates(self.split.settle(), self.counters, self.k))
         self._log(log)
         if self.progress is not None:
             self.progress.update(self.counters, log)
 
     def _log(self, values: dict[str, float]) -> None:
-        if self.logger is not None:
-            for key, value in values.items():
-                self.logger.log_scalar(key, value, step=self.counters["frames"])
+        if self.logger is not None and values:
+            self.logger.log_metrics(values, step=self.counters["frames"])  # one row per logging event
 
     def _print(self, message: str) -> None:
+        message = job_tag() + message  # a sweep's jobs share the terminal: each line says whose it is
         if self.progress is not None:
             self.progress.write(message)
         else:
             print(message, flush=True)
 
     def _evaluate(self) -> dict[str, float]:
-        row = evaluation_row(self.cfg, self.learner.actor, self.counters["frames"])
-        self.evaluations.append(row)
-        self._log({f"eval/{k}": v for k, v in row.items() if k != "frames"})
-        return row
+        """Evaluate every member that is not final (a final member's last evaluation stands): those
+        still training in one batched rollout when there are several, a member alone as a solo run is."""
+        live = self.members.live()
+        batched = {}
+        if len(live) > 1:
+            params = self.learner.params.get("actor_network_params")[torch.tensor(live, device=self.learner.params.device)]
+            results = evaluate_members(self._eval_actor, params.detach(), self.cfg.scenario,
+                                       self.cfg.experiment.eval_episodes, self.cfg.eval_seed, self.cfg.device)
+            batched = {k: result_row(result, self.counters["frames"]) for k, result in zip(live, results)}
+
+        def alone(k: int, actor: dict[str, torch.Tensor], frames: int) -> dict[str, float]:
+            self._eval_actor.load_state_dict(actor)
+            return evaluation_row(self.cfg, self._eval_actor, frames)
+
+        summary, scalars = self.members.evaluated(batched, alone, self.learner, self.counters["frames"])
+        self.evaluations.append(summary)
+        self._log(scalars)
+        return summary
 
     # ---------------------------------------------------------------- the end
     def _finish(self, signals: Signals) -> TrainResult:
@@ -264,7 +292,7 @@ class Training:
         raise TrainingInterrupted(signum, self._result(path, signum), resume_command(self.run_dir))
 
     def _close(self) -> None:
-        self.episode_log.close()
+        self.members.close()
         if self.progress is not None:
             self.progress.close()
         if self.cfg.logger.backend == "wandb" and self.logger is not None:
@@ -280,9 +308,9 @@ class Training:
         exp = self.cfg.experiment
         state = {
             "meta": self.meta, "config": self.resolved, "counters": dict(self.counters),
-            "actor": self.learner.actor.state_dict(), "learner": self.learner.state_dict(),
-            "rng": rng_state(torch.device(self.cfg.device)), "evaluations": self.evaluations,
-            "curve": torch.tensor(self.episode_log.rows(), dtype=torch.float64).reshape(-1, len(EPISODE_COLUMNS)),
+            "learner": self.learner.state_dict(), "rng": rng_state(torch.device(self.cfg.device)),
+            "evaluations": self.evaluations, **self.members.state(self.learner, self.counters, self.meta,
+                                                                   self.resolved),
         }
         if exp.workers == 1:
             state["env_state"] = [e.get_state() for e in self.envs] if self.mixed else self.env.get_state()
@@ -302,5 +330,5 @@ class Training:
 # Also importable from here: the names the apps, reports and benchmarks use.
 __all__ = ["EPISODE_COLUMNS", "Learner", "SHUTDOWN_TIMEOUT", "STOP_SIGNALS", "Signals", "Stopped", "TRANSITION_KEYS",
            "TrainResult", "TrainingInterrupted", "Training", "agentwise_done", "checkpoint_meta", "config_differences",
-           "episode_rows", "hydra_output_dir", "make_env", "make_train_config", "memory_estimate", "prepare",
+           "hydra_output_dir", "make_env", "make_train_config", "memory_estimate", "per_uav", "prepare",
            "replay_buffer", "start_resource_tracker"]

@@ -1,5 +1,6 @@
 """Where code reads tensor values on the host: on a GPU each such read waits for the device
-(a synchronisation), and none may sit inside a captured CUDA graph.
+(a synchronisation), and none may sit inside a captured CUDA graph. A development tool of the
+repository (the tests and the benchmarks count with it), not of the installed package.
 
 :class:`HostReads` is a ``TorchDispatchMode`` that counts, by operator and by the line of
 flock_torchrl, TorchRL or tensordict that asked, the operators whose result depends on tensor
@@ -111,7 +112,7 @@ def _place(stack: traceback.StackSummary, packages: tuple[str, ...] = _PACKAGES)
     (outside this module), or ``"elsewhere"``."""
     for frame in reversed(stack):
         name = frame.filename.replace("\\", "/")
-        if name.endswith("run/host_reads.py"):
+        if name.endswith("benchmarks/counting.py"):
             continue
         for package in packages:
             at = name.rfind("/" + package)
