@@ -185,7 +185,7 @@ def draw_world(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float,
     of view, UAVs."""
     draw_static(ax, cfg, state.goal)
     draw_obstacles(ax, state.circles, state.rectangles)
-    spheres = [*getattr(cfg, "spheres", [])] if getattr(cfg, "dims", 2) == 3 else []
+    spheres = [*cfg.spheres] if cfg.dims == 3 else []
     for cx, cy, _, r in [*spheres, *np.asarray(state.spheres, dtype=float).reshape(-1, 4)]:
         ax.add_patch(Circle((cx, cy), r, facecolor=OBSTACLE_COLOR, edgecolor="black", lw=0.3, alpha=0.5, zorder=1))
     if state.moving.size:

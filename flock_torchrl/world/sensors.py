@@ -27,7 +27,7 @@ SIZES_3D = {"goal": 3, "scan": 3, "camera": 5, "centre": 5}
 
 def piece_sizes(cfg) -> dict[str, int]:
     """Numbers per piece (goal, scan slot, camera slot, centre) in ``cfg``'s dimension."""
-    if getattr(cfg, "dims", 2) == 3:
+    if cfg.dims == 3:
         return SIZES_3D
     return {"goal": GOAL_SIZE, "scan": SCAN_SLOT, "camera": CAMERA_SLOT, "centre": CENTRE_SIZE}
 
@@ -261,21 +261,21 @@ def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor
     return length(to_goal), alpha, beta, off_axis(alpha, beta, climb)
 
 
-def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor,
-                     goal_scale: float, polar: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, goal_scale: float,
+                     polar: tuple[torch.Tensor, ...] | None = None, climb: torch.Tensor | None = None
+                     ) -> torch.Tensor:
     """``o_g = [min(d_g / d_s, 1), alpha_g / pi]`` (Eq. 14-15, erratum: divide by d_s).
 
     Args:
-        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``; given
-        a 3-D ``polar``, ``[min(d_g / d_s, 1), alpha_g / pi, beta_g / pi]`` (section 11).
+        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``; in 3-D
+        (``climb`` given, section 11) ``[min(d_g / d_s, 1), alpha_g / pi, beta_g / pi]``.
     """
-    polar = polar if polar is not None else goal_polar(position, heading, goal)
+    polar = polar if polar is not None else goal_polar(position, heading, goal, climb)
     d, alpha = polar[0], polar[1]
     # Stacked outermost and viewed as [B, N, k] (here and in s_c): compiled, the loop computing
     # the pieces then writes each one whole; interleaved writes keep it from vectorising its atan2.
-    if len(polar) == 2:
-        return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi), 0).movedim(0, -1)
-    return torch.stack(((d / goal_scale).clamp_max(1.0), alpha / math.pi, polar[2] / math.pi), 0).movedim(0, -1)
+    parts = ((d / goal_scale).clamp_max(1.0), alpha / math.pi) + (() if climb is None else (polar[2] / math.pi,))
+    return torch.stack(parts, 0).movedim(0, -1)
 
 
 @dataclass
@@ -315,7 +315,7 @@ class Neighbours:
     @property
     def cone_angle(self) -> torch.Tensor:
         """The angle the field of view bounds: ``|bearing|`` in 2-D, the off-axis angle in 3-D."""
-        return self.bearing if self.view_angle is None else self.view_angle
+        return self.bearing if self.dz is None else self.view_angle
 
     def offsets(self, heading: torch.Tensor | None = None) -> torch.Tensor:
         """Measured ``p_j - p_i`` in the world frame, ``[B, N, N, 2]`` (3-D: ``[B, N, N, 3]``)."""
@@ -351,26 +351,36 @@ def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: 
     return (distance < camera_range) & (rel_bearing.abs() <= half_fov) & others
 
 
-def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, heading_j: torch.Tensor
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """What UAV i's camera measures of UAV j at offset ``p_j - p_i = (dx, dy)`` (section 2,
-    Eq. 17 before normalising): distance, bearing relative to i's heading, and
-    ``wrap(phi_i - phi_j)``; all broadcast to the offsets' shape."""
-    return (torch.sqrt(dx * dx + dy * dy), wrap(torch.atan2(dy, dx) - heading_i),
-            wrap(heading_i - heading_j))
-
-
-def measure_pairs_3d(dx: torch.Tensor, dy: torch.Tensor, dz: torch.Tensor, heading_i: torch.Tensor,
-                     heading_j: torch.Tensor, climb_i: torch.Tensor, climb_j: torch.Tensor) -> dict[str, torch.Tensor]:
-    """:func:`measure_pairs` in space (section 11): the 3-D distance, the azimuth relative to i's
-    heading, ``wrap(phi_i - phi_j)``, and the elevation, ``gamma_i - gamma_j`` and the off-axis
-    angle of j from i's direction of flight; with ``dz = 0`` and level flight the first three are
-    :func:`measure_pairs`'s bit for bit."""
+def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, heading_j: torch.Tensor,
+                  dz: torch.Tensor | None = None, climb_i: torch.Tensor | None = None,
+                  climb_j: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """What UAV i's camera measures of UAV j at offset ``p_j - p_i = (dx, dy)`` (section 2, Eq. 17
+    before normalising): ``distance``, ``bearing`` relative to i's heading and ``heading_difference``
+    ``wrap(phi_i - phi_j)``, all broadcast to the offsets' shape. In space (``dz`` and the flight-path
+    angles given, section 11) the distance is 3-D, and the ``elevation``, ``climb_difference``
+    ``gamma_i - gamma_j`` and ``view_angle`` (the off-axis angle of j from i's direction of flight)
+    join them; with ``dz = 0`` and level flight the first three are the plane's bit for bit."""
     bearing = wrap(torch.atan2(dy, dx) - heading_i)
-    elevation = elevation_of(dx, dy, dz)
-    return {"distance": torch.sqrt(dx * dx + dy * dy + dz * dz), "bearing": bearing,
-            "heading_difference": wrap(heading_i - heading_j), "elevation": elevation,
-            "climb_difference": climb_i - climb_j, "view_angle": off_axis(bearing, elevation, climb_i)}
+    squared = dx * dx + dy * dy
+    out = {"distance": torch.sqrt(squared if dz is None else squared + dz * dz), "bearing": bearing,
+           "heading_difference": wrap(heading_i - heading_j)}
+    if dz is not None:
+        elevation = elevation_of(dx, dy, dz)
+        out.update(elevation=elevation, climb_difference=climb_i - climb_j,
+                   view_angle=off_axis(bearing, elevation, climb_i))
+    return out
+
+
+def measured(pairs: dict[str, torch.Tensor], dx: torch.Tensor, dy: torch.Tensor, dz: torch.Tensor | None,
+             camera_range: float, half_fov: float, others: torch.Tensor | None, valid: torch.Tensor | None = None,
+             pair_dim: int = -1, shape: tuple[int, ...] | None = None) -> Neighbours:
+    """The :class:`Neighbours` of :func:`measure_pairs`' ``pairs``, each visible as :func:`visibility`
+    says of its cone angle (``others``: which entries are other UAVs); measured on rows, ``shape``
+    views them as the layout's. ``valid``, ``pair_dim``: the layout's (:class:`Neighbours`)."""
+    visible = visibility(pairs["distance"], pairs.get("view_angle", pairs["bearing"]), camera_range, half_fov, others)
+    if shape is not None:
+        pairs, visible = {key: value.view(shape) for key, value in pairs.items()}, visible.view(shape)
+    return Neighbours(visible=visible, dx=dx, dy=dy, dz=dz, valid=valid, pair_dim=pair_dim, **pairs)
 
 
 def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
@@ -379,9 +389,8 @@ def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_ran
     px, py = position[..., 0].contiguous(), position[..., 1].contiguous()
     dx = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
     dy = py[..., None, :] - py[..., :, None]
-    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., :, None], heading[..., None, :])
-    return Neighbours(distance, rel_bearing, heading_difference,
-                      visibility(distance, rel_bearing, camera_range, half_fov), dx, dy)
+    return measured(measure_pairs(dx, dy, heading[..., :, None], heading[..., None, :]), dx, dy, None, camera_range,
+                    half_fov, None)
 
 
 @dataclass
@@ -421,7 +430,7 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
 
     In 3-D (``position [B, N, 3]``, ``climb [B, N]``; section 11) the distances are 3-D, the
     camera a cone about the direction of flight, and the neighbours carry their elevations and
-    climb differences (:func:`measure_pairs_3d`).
+    climb differences (:func:`measure_pairs`).
 
     ``worlds_last`` (with ``static_shapes``): every pair, laid out ``[N_j, N, B]`` (``pair_dim =
     0``), the compiled step's layout; the same formulas.
@@ -461,20 +470,10 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
             return rows(per_uav[..., None, :].expand(b, n, n))
 
         others = valid[0].reshape(n * n)
-        if climb is not None:
-            m = measure_pairs_3d(rows(dx_all), rows(dy_all), rows(dz_all), of_i(heading), of_j(heading), of_i(climb),
-                                 of_j(climb))
-            visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=others)
-            m = {key: value.view(b, n, n) for key, value in m.items()}
-            return (Neighbours(visible=visible.view(b, n, n), dx=dx_all, dy=dy_all, valid=valid, dz=dz_all, **m),
-                    NearPairs(None, valid), closest)
+        three = {} if climb is None else dict(dz=rows(dz_all), climb_i=of_i(climb), climb_j=of_j(climb))
         # Oneself at distance 0, as measured (never valid; S4 noise keeps it finite).
-        distance, rel_bearing, heading_difference = measure_pairs(rows(dx_all), rows(dy_all), of_i(heading),
-                                                                  of_j(heading))
-        visible = visibility(distance, rel_bearing, camera_range, half_fov, others=others)
-        distance, rel_bearing, heading_difference, visible = (t.view(b, n, n) for t in (
-            distance, rel_bearing, heading_difference, visible))
-        return (Neighbours(distance, rel_bearing, heading_difference, visible, dx_all, dy_all, valid),
+        pairs = measure_pairs(rows(dx_all), rows(dy_all), of_i(heading), of_j(heading), **three)
+        return (measured(pairs, dx_all, dy_all, dz_all, camera_range, half_fov, others, valid, shape=(b, n, n)),
                 NearPairs(None, valid), closest)
     bi, ii, ji = near.nonzero(as_tuple=True)  # ordered by world, UAV, then j
     row = bi * n + ii
@@ -489,18 +488,13 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     dx, dy = dx_all.flatten().take(flat), dy_all.flatten().take(flat)
     other = (rows - rows % n)[:, None].repeat(1, width)  # index of UAV j's heading; padding: world's first
     other.view(-1)[at] = bi * n + ji
+    others = other.view(b, n, width)
+    dz, three = None, {}
     if climb is not None:
         dz = dz_all.flatten().take(flat)
-        others = other.view(b, n, width)
-        m = measure_pairs_3d(dx, dy, dz, heading[..., None], heading.flatten().take(others), climb[..., None],
-                             climb.flatten().take(others))
-        visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
-        return Neighbours(visible=visible, dx=dx, dy=dy, valid=valid, dz=dz, **m), NearPairs(flat, valid), closest
-    distance, rel_bearing, heading_difference = measure_pairs(dx, dy, heading[..., None],
-                                                              heading.flatten().take(other.view(b, n, width)))
-    visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
-    return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid), NearPairs(flat, valid),
-            closest)
+        three = dict(dz=dz, climb_i=climb[..., None], climb_j=climb.flatten().take(others))
+    pairs = measure_pairs(dx, dy, heading[..., None], heading.flatten().take(others), **three)
+    return (measured(pairs, dx, dy, dz, camera_range, half_fov, valid, valid), NearPairs(flat, valid), closest)
 
 
 def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
@@ -520,17 +514,11 @@ def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera
     # sqrt is monotone and exactly rounded: the smallest distance is the root of the smallest square.
     closest = torch.sqrt(torch.where(others, squared, math.inf).amin(0).amin(0))
     valid = others.expand(n, n, b)
+    g = None if climb is None else worlds_last(climb)
+    three = {} if climb is None else dict(dz=dz, climb_i=g[None], climb_j=g[:, None])
     # Stored: the masks below are then compared afresh where read (a stored bool costs more than that).
-    if climb is not None:
-        g = worlds_last(climb)
-        m = measure_pairs_3d(dx, dy, dz, h[None], h[:, None], g[None], g[:, None])
-        m = {key: stored(t) for key, t in m.items()}
-        visible = visibility(m["distance"], m["view_angle"], camera_range, half_fov, others=valid)
-        return (Neighbours(visible=visible, dx=dx, dy=dy, valid=valid, dz=dz, pair_dim=0, **m),
-                NearPairs(None, valid, worlds_last=True), closest)
-    distance, rel_bearing, heading_difference = (stored(t) for t in measure_pairs(dx, dy, h[None], h[:, None]))
-    visible = visibility(distance, rel_bearing, camera_range, half_fov, others=valid)
-    return (Neighbours(distance, rel_bearing, heading_difference, visible, dx, dy, valid, pair_dim=0),
+    pairs = {key: stored(t) for key, t in measure_pairs(dx, dy, h[None], h[:, None], **three).items()}
+    return (measured(pairs, dx, dy, dz, camera_range, half_fov, valid, valid, pair_dim=0),
             NearPairs(None, valid, worlds_last=True), closest)
 
 
@@ -554,10 +542,10 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
     present = torch.isfinite(first if dim == -1 else first.permute(2, 1, 0))
     parts = [(at_order(neighbours.distance) / camera_range).clamp(0.0, 1.0),
              at_order(neighbours.bearing) / math.pi]
-    if neighbours.elevation is not None:  # 3-D (section 11): the elevation after the azimuth
+    if neighbours.dz is not None:  # 3-D (section 11): the elevation after the azimuth
         parts.append(at_order(neighbours.elevation) / math.pi)
     parts.append(at_order(neighbours.heading_difference) / math.pi)
-    if neighbours.climb_difference is not None:
+    if neighbours.dz is not None:
         parts.append(at_order(neighbours.climb_difference) / math.pi)
     slots = torch.stack(parts, -1)
     missing = constant([1.0] + [0.0] * (len(parts) - 1), slots)
@@ -622,7 +610,7 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
     heading_difference = wrap(neighbours.heading_difference + angle_std * normals["heading_difference"])
     # The measured offsets follow the measured distance and bearing (relative to the true heading).
     angle = bearing + torch.atan2(neighbours.dy, neighbours.dx) - neighbours.bearing
-    if neighbours.elevation is None:
+    if neighbours.dz is None:
         noisy = dataclasses.replace(neighbours, distance=distance, bearing=bearing,
                                     heading_difference=heading_difference, dx=distance * torch.cos(angle),
                                     dy=distance * torch.sin(angle))
@@ -656,7 +644,7 @@ def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
 
 __all__ = [
     "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "SIZES_3D", "observation_size", "state_size",
-    "elevation_of", "measure_pairs_3d", "off_axis", "piece_sizes", "planar_entries", "ring_tables",
+    "elevation_of", "measured", "off_axis", "piece_sizes", "planar_entries", "ring_tables",
     "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
     "beam_azimuths", "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
     "pick", "shortest_beams", "smallest", "worlds_last",

@@ -148,7 +148,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     true_shortest = shortest_beams(beams, max(cfg.n_scan, 1), static_shapes) if cfg.noise else sensed_shortest
     polar = goal_polar(position, heading, goal, climb)
     d_goal, alpha_goal = polar[0], polar[-1]  # 3-D: the off-axis angle, what r_g reads
-    o_g = goal_observation(position, heading, goal, cfg.goal_scale, polar)
+    o_g = goal_observation(position, heading, goal, cfg.goal_scale, polar, climb)
     # The actor's slots: the camera's field of view (the paper), or all round (``actor_camera``),
     # the same (noisy) measurements either way; the instinct below keeps the field of view.
     actor_view = neighbours if cfg.actor_camera == "paper" else neighbours.with_visibility(all_round.visible)

@@ -178,7 +178,7 @@ class RuleBasedPolicy(TensorDictModuleBase):
         super().__init__()
         self.in_keys = [("agents", "position"), ("agents", "velocity"), ("agents", "heading"),
                         ("agents", "scan"), ("agents", "scan_obstacle"), "goal"]
-        if getattr(env_cfg, "dims", 2) == 3:  # the flight-path angle (section 11)
+        if env_cfg.dims == 3:  # the flight-path angle (section 11)
             self.in_keys.append(("agents", "climb"))
         self.out_keys = [("agents", "action")]
         self.params, self.env_cfg, self.seed = params, env_cfg, seed
@@ -199,8 +199,7 @@ class RuleBasedPolicy(TensorDictModuleBase):
         position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
         heading = tensordict["agents", "heading"]
         noise, generator = self._camera_noise(position.device)
-        three_d = getattr(cfg, "dims", 2) == 3
-        climb = tensordict["agents", "climb"] if three_d else None
+        climb = tensordict["agents", "climb"] if cfg.dims == 3 else None
         return Percept(
             velocity=velocity,
             to_goal=tensordict["goal"][:, None, :] - position,
