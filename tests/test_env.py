@@ -471,3 +471,20 @@ def test_env_refuses_to_step_a_done_world(short_env):
     td = env.rand_action(env.reset())
     for _ in range(5):
         _, td = env.step_and_maybe_reset(env.rand_action(td))
+
+
+def test_copies_of_the_env_share_the_default_seed_until_a_batched_env_seeds_them_apart():
+    """Every FlockingEnv defaults to seed 0 (a run is reproducible without asking), so TorchRL's
+    batched envs built from one constructor hold identical copies; their ``set_seed`` gives each
+    copy its own stream (TorchRL seeds copy k from the seed copy k - 1 returned)."""
+    import functools
+
+    from torchrl.envs import SerialEnv
+
+    env = SerialEnv(2, functools.partial(FlockingEnv, "train", num_envs=2))
+    obs = env.reset()["agents", "observation"]
+    assert torch.equal(obs[0], obs[1])
+    env.set_seed(7)
+    obs = env.reset()["agents", "observation"]
+    assert not torch.equal(obs[0], obs[1])
+    env.close()

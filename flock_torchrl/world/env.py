@@ -51,7 +51,9 @@ class FlockingEnv(EnvBase):
             :func:`flock_torchrl.config.scenario_config`.
         num_envs: batch size ``B``.
         device: torch device of every tensor.
-        seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles).
+        seed: seed of the env's own generator (spawns, S4 noise, moving and drawn obstacles); 0 by
+            default, so copies built alike (TorchRL's ``SerialEnv`` / ``ParallelEnv`` of one
+            constructor) hold the same worlds until their ``set_seed(s)`` seeds each its own stream.
         reading: ``literal`` or ``paper_fit`` (docs/specification.md section 9).
         policy_id: a policy (``policy3_g`` ...) whose sensing, instinct and reward apply (TorchRL
             reserves the keyword ``policy``).
