@@ -22,7 +22,7 @@ PUBLISH := OMP_NUM_THREADS=1 $(PYTHON) scripts/publish.py
 .PHONY: install test test-all demo readme-demo docs train train-all check-train-all train-paper train-paper-all train-paper-populations \
         train-fast-populations train-mixed ship-checkpoints reproduce-table3 reproduce-table3-paper \
         figures publish publish-tables publish-paper-recipe publish-scaling publish-claims tune-baselines benchmark publish-benchmark \
-        scaling train-3d ship-threed table3-3d publish-threed clean
+        scaling train-3d train-3d-scaling ship-threed table3-3d publish-threed clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV) && $(PYTHON) -m pip install --quiet --upgrade pip
@@ -197,36 +197,40 @@ scaling: $(STAMP)
 	$(PUBLISH) scaling scaling_outputs.reading=$(READING)
 
 # Three dimensions (docs/specification.md section 11; docs/threed.md). train-3d: Policy3-G and its no-instinct
-# twin Policy2-G trained on train3d (experiment=fast; SAC's target entropy -|A| = -3 by default), seeds
-# THREED_SEEDS (the five shipped), into runs/threed/ (3-7 min a run on one core here, two at a time). Runs trained while this target
-# passed algo.target_entropy=-3.0 (the same value) are named seed<k>__algo.target_entropy--3.0__scenario-train3d;
-# ship-threed ships those too, but a new train-3d trains its own seed<k>__scenario-train3d beside them.
-THREED_SEEDS ?= 0,1,2,3,4
+# twin Policy2-G trained on train3d and wall3d's world (experiment=fast3d, 240k frames; SAC's target entropy
+# -|A| = -3), five seeds each as a population (THREED_SEEDS), into runs/threed/, one at a time.
+# train-3d-scaling: the flocks at scale in space (experiment=mixed_cluttered3d, three seeds as a population):
+# Policy3-G-crowd-ramp-allround-radial and its twin with the paper's camera, into runs/, two at a time.
+THREED_SEEDS ?= 5
 THREED_EPISODES ?= 500
 THREED_RUNS ?= runs/threed
 train-3d: $(STAMP)
-	$(SWEEP) experiment=fast scenario=train3d seed=$(THREED_SEEDS) policy=policy3_g,policy2_g reading=$(CHECK_READING) hydra.sweep.dir=$(THREED_RUNS)
+	$(SWEEP) hydra.launcher.n_jobs=1 experiment=fast3d scenario=train3d seed=0 population=$(THREED_SEEDS) policy=policy3_g,policy2_g reading=$(CHECK_READING) hydra.sweep.dir=$(THREED_RUNS)
+train-3d-scaling: $(STAMP)
+	$(SWEEP) experiment=mixed_cluttered3d scenario=train3d seed=0 population=3 compile=step policy=policy3_g_crowd_ramp_allround_radial,policy3_g_crowd_ramp_radial reading=$(CHECK_READING) hydra.sweep.dir=$(RUNS)
 
-# ship-threed: the named step that updates checkpoints/<reading>/threed/: the slim policies of the
-# finished runs of train-3d (THREED_RUNS), <policy>/seed<k>.pt, with their MANIFEST.md (conf/ship.yaml).
+# ship-threed: the named step that updates checkpoints/<reading>/threed/ and mixed_cluttered3d/: the slim
+# policies of the finished runs of train-3d (THREED_RUNS) and train-3d-scaling, <policy>/seed<k>.pt, each
+# collection with its MANIFEST.md (conf/ship.yaml).
 ship-threed: $(STAMP)
 	$(PYTHON) scripts/ship.py reading=$(CHECK_READING) only=threed scenario_collections.threed.runs_dir=$(THREED_RUNS)
+	$(PYTHON) scripts/ship.py reading=$(CHECK_READING) only=mixed_cluttered3d scenario_collections.mixed_cluttered3d.runs_dir=$(RUNS)
 
 # table3-3d: the finished runs of train-3d, before they are shipped, and the two baselines on train3d, forest3d
 # and wall3d, THREED_EPISODES episodes each, as publish-threed's table and figures, into outputs/threed/<reading>/.
 table3-3d: $(STAMP)
-	$(PUBLISH) table3-3d table3_3d.reading=$(CHECK_READING) "table3_3d.runs=$(THREED_RUNS)/fast/<reading>/*/seed*/last.pt" table3_3d.episodes=$(THREED_EPISODES)
+	$(PUBLISH) table3-3d table3_3d.reading=$(CHECK_READING) "table3_3d.runs=$(THREED_RUNS)/fast3d/<reading>/*/seed*/last.pt" table3_3d.episodes=$(THREED_EPISODES)
 
 # publish-threed: the named step that writes the 3-D results (docs/specification.md section 11) from
-# checkpoints/<reading>/threed/ (make ship-threed): every shipped seed of Policy3-G and Policy2-G and the
-# baselines Policy-MA and Policy-OP on train3d, forest3d and wall3d, EPISODES each, with the verdicts, into
-# results/<reading>/table3_3d.{md,csv} and table3_3d_seeds.csv; one episode of Policy-OP and of Policy3-G's
-# seed of median success on each scenario as a GIF, and a frame on wall3d, figures/<reading>/threed_* (which
-# seed: results/<reading>/threed_figures.md); Policy3-G's seeds and the baselines flown by 5-100 UAVs on train3d,
-# THREED_SCALING_EPISODES episodes per size, results/<reading>/scaling_train3d.{md,csv,png}; the documents.
-# 929 s on one core here (paper_fit, five seeds each, 500 episodes per seed and scenario, 200 per swarm size:
-# about 6 min of table and figures, 10 of scaling). The rows flown: conf/publish.yaml's threed.
-THREED_SCALING_EPISODES ?= 200
+# checkpoints/<reading>/threed/ and mixed_cluttered3d/ (make ship-threed): every shipped seed of Policy3-G and
+# Policy2-G and the baselines Policy-MA and Policy-OP on train3d, forest3d and wall3d, EPISODES each, with the
+# verdicts, into results/<reading>/table3_3d.{md,csv} and table3_3d_seeds.csv; one episode of Policy-OP and of
+# Policy3-G's seed of median success on each scenario as a GIF, and a frame on wall3d, figures/<reading>/threed_*
+# (which seed: results/<reading>/threed_figures.md); Policy3-G's seeds, the flocks at scale and the baselines
+# flown by 5-100 UAVs on train3d and forest3d, THREED_SCALING_EPISODES episodes per checkpoint and size,
+# results/<reading>/scaling_{train3d,forest3d}.{md,csv,png}, and their pooled verdicts; the documents. The rows
+# flown: conf/publish.yaml's threed.
+THREED_SCALING_EPISODES ?= 500
 publish-threed: $(STAMP)
 	$(PUBLISH) publish-threed threed.reading=$(CHECK_READING) threed.episodes=$(EPISODES) threed.scaling_episodes=$(THREED_SCALING_EPISODES)
 

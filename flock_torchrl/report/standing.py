@@ -27,6 +27,7 @@ from .seeds import claim_verdict, comparisons_of, read_seed_scores
 
 READINGS = ("paper_fit", "literal")
 SCALING_POLICY = "Policy3-G-crowd-ramp-allround-radial"
+PAPER_CAMERA_POLICY = "Policy3-G-crowd-ramp-radial"  # its twin with the paper's camera
 BASELINE = "Policy-MA"                      # Olfati-Saber's flocking, the scaling tables' yardstick
 INSTINCT_CLAIM, *_ = (c for c in CLAIMS if c.metric == "d_min_uav" and c.compare.__name__ == "_all_above")
 SUCCESS_CLAIMS = [c for c in CLAIMS if c.metric == "success_rate"]
@@ -140,14 +141,14 @@ def _pooled(rows: list[dict[str, str]], size: int, key: str) -> tuple[float, flo
     return (k / n, *wilson_interval(k, n), n)
 
 
-def scaling_cells(path: Path) -> list[dict]:
-    """Per swarm size: the scaling policy's seeds pooled beside Policy-MA (safe success, success)."""
+def scaling_cells(path: Path, policy: str = SCALING_POLICY) -> list[dict]:
+    """Per swarm size: ``policy``'s seeds pooled beside Policy-MA (safe success, success)."""
     with path.open(newline="") as handle:
         rows = list(csv.DictReader(handle))
-    mine = [r for r in rows if r["policy"].startswith(f"{SCALING_POLICY} [")]
+    mine = [r for r in rows if r["policy"].startswith(f"{policy} [")]
     base = {int(r["n_uavs"]): r for r in rows if r["policy"] == BASELINE}
     if not mine or not base:
-        raise ValueError(f"{path} holds no rows of {SCALING_POLICY} or {BASELINE}")
+        raise ValueError(f"{path} holds no rows of {policy} or {BASELINE}")
     cells = []
     for size in sorted({int(r["n_uavs"]) for r in mine}):
         safe, low, high, n = _pooled(mine, size, "safe_success_rate")
@@ -197,28 +198,61 @@ def _verdict(c: dict) -> str:
     return "below, beyond both intervals"
 
 
-def scaling_summary(reading_dir: str | Path) -> str:
-    """Markdown: the scaling policy's seeds pooled beside Policy-MA, per scenario and swarm size
-    (safe success with 95 % Wilson intervals, success), from ``scaling.csv`` and
-    ``scaling_forest.csv`` of one reading's results."""
+# The pooled comparisons with Policy-MA (docs/specification.md section 11): file -> (policy, its
+# scenarios' scaling tables, the make target that publishes them). Written where their rows are.
+POOLED = {
+    "scaling_pooled.md": (SCALING_POLICY, {"train": "scaling.csv", "forest": "scaling_forest.csv"},
+                          "`make publish-scaling`"),
+    "scaling_pooled_paper_camera.md": (PAPER_CAMERA_POLICY, {"train": "scaling.csv", "forest": "scaling_forest.csv"},
+                                       "`make publish-scaling`"),
+    "scaling3d_pooled.md": (SCALING_POLICY, {"train3d": "scaling_train3d.csv", "forest3d": "scaling_forest3d.csv"},
+                            "`make publish-threed`"),
+    "scaling3d_pooled_paper_camera.md": (PAPER_CAMERA_POLICY, {"train3d": "scaling_train3d.csv",
+                                                               "forest3d": "scaling_forest3d.csv"},
+                                         "`make publish-threed`"),
+}
+
+
+def scaling_summary(reading_dir: str | Path, name: str = "scaling_pooled.md") -> str | None:
+    """Markdown: a policy's seeds pooled beside Policy-MA, per scenario and swarm size (safe success
+    with 95 % Wilson intervals, success, the verdict of docs/specification.md section 11), from the
+    scaling tables of one reading's results (:data:`POOLED`); ``None`` where none holds its rows."""
     reading_dir = Path(reading_dir)
-    lines = [f"# {SCALING_POLICY} beside {BASELINE} (reading `{reading_dir.name}`)", "",
-             f"{SCALING_POLICY}'s shipped seeds pooled (the same episodes per seed), beside Olfati-Saber's "
-             f"{BASELINE}, from `scaling.csv` and `scaling_forest.csv` (`make publish-scaling`); rates in %, "
-             "safe success with its 95 % Wilson interval. Written by `make docs`.", "",
+    policy, tables, made_by = POOLED[name]
+    found = {scenario: reading_dir / table for scenario, table in tables.items()
+             if (reading_dir / table).exists() and _has_rows(reading_dir / table, policy)}
+    if not found:
+        return None
+    files = " and ".join(f"`{path.name}`" for path in found.values())
+    lines = [f"# {policy} beside {BASELINE} (reading `{reading_dir.name}`)", "",
+             f"{policy}'s shipped seeds pooled (the same episodes per seed), beside Olfati-Saber's "
+             f"{BASELINE}, from {files} ({made_by}); rates in %, safe success with its 95 % Wilson interval. "
+             "Written by `make docs`.", "",
              "| scenario | N | episodes (pooled / Policy-MA) | success: pooled / Policy-MA | safe success, pooled | "
              "safe success, Policy-MA | safe success against Policy-MA |",
              "|---|---|---|---|---|---|---|"]
-    for scenario, name in (("train", "scaling.csv"), ("forest", "scaling_forest.csv")):
-        with (reading_dir / name).open(newline="") as handle:
+    met = above = total = 0
+    for scenario, path in found.items():
+        with path.open(newline="") as handle:
             base = {int(r["n_uavs"]): float(r["success_rate"]) for r in csv.DictReader(handle)
                     if r["policy"] == BASELINE}
-        for c in scaling_cells(reading_dir / name):
+        for c in scaling_cells(path, policy):
+            verdict = _verdict(c)
+            total, met = total + 1, met + (verdict != "below, beyond both intervals")
+            above += verdict == "above, beyond both intervals"
             lines.append(f"| {scenario} | {c['n_uavs']} | {c['episodes']} / {c['base_episodes']} | "
                          f"{_pct(c['success'])} / {_pct(base[c['n_uavs']])} | {_pct(c['safe'])} "
                          f"[{_pct(c['low'])}, {_pct(c['high'])}] | {_pct(c['base'])} [{_pct(c['base_low'])}, "
-                         f"{_pct(c['base_high'])}] | {_verdict(c)} |")
+                         f"{_pct(c['base_high'])}] | {verdict} |")
+    if name != "scaling_pooled.md":  # the rule's count (the first table is quoted as it always was)
+        lines += ["", f"Cells met (not below Policy-MA beyond both intervals): {met} of {total}; above it beyond "
+                      f"both intervals: {above} of {total}."]
     return "\n".join(lines) + "\n"
+
+
+def _has_rows(path: Path, policy: str) -> bool:
+    with path.open(newline="") as handle:
+        return any(r["policy"].startswith(f"{policy} [") for r in csv.DictReader(handle))
 
 
 def standing(results: str | Path = "results") -> str:
@@ -230,11 +264,16 @@ def standing(results: str | Path = "results") -> str:
 
 
 def write_standing(results: str | Path = "results", out: str | Path | None = None) -> list[Path]:
-    """``results/standing.md`` (README's table) and ``results/paper_fit/scaling_pooled.md``
-    (docs/scaling.md's table)."""
+    """``results/standing.md`` (README's table) and the pooled comparisons with Policy-MA of
+    :data:`POOLED` whose rows are published (``results/paper_fit/scaling*_pooled*.md``; docs/scaling.md
+    and docs/threed.md quote them)."""
     results = Path(results)
-    return [write_text(Path(out) if out is not None else results / "standing.md", standing(results)),
-            write_text(results / "paper_fit" / "scaling_pooled.md", scaling_summary(results / "paper_fit"))]
+    written = [write_text(Path(out) if out is not None else results / "standing.md", standing(results))]
+    for name in POOLED:
+        table = scaling_summary(results / "paper_fit", name)
+        if table is not None:
+            written.append(write_text(results / "paper_fit" / name, table))
+    return written
 
 
 def main(argv: Sequence[str] | None = None) -> int:
