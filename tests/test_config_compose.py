@@ -244,7 +244,7 @@ def test_every_train_composition_keeps_the_values_main_composed(every):
         # and the captured update's switch, off, which a resume may change
         assert tree.pop("cudagraphs") is False, name
         tree["resumable"].remove("cudagraphs")
-        # and compile, which a resume no longer changes, true by default in the paper recipe (issue 53)
+        # and compile, which a resume no longer changes, true by default in the paper recipe
         assert "compile" not in tree["resumable"], name
         tree["resumable"].insert(tree["resumable"].index("device") + 1, "compile")
         assert tree["compile"] is (experiment == "paper"), name

@@ -191,7 +191,7 @@ def test_the_wilson_interval_is_scipys_and_the_textbook_formula():
     assert math.isnan(empty.rate) and math.isnan(empty.low) and math.isnan(empty.high) and empty.n == 0
 
 
-# ---------------------------------------------------------------------------- issue 53: loaded policies
+# ---------------------------------------------------------------------------- loaded policies
 def test_a_shipped_checkpoint_is_named_the_same_from_any_folder(tmp_path, monkeypatch):
     """A path relative to the shipped collection (or as from a clone's root, checkpoints/...)
     names a shipped checkpoint from any folder, as it does from the wheel; a file of that name in

@@ -894,7 +894,7 @@ def test_usage_regenerates_the_shipped_seeds_as_they_were_trained():
     assert "under `literal` seeds 0-2 as solo runs and 3-9 as one population of seven" in readme
 
 
-# ---------------------------------------------------------------------------- issue 53
+# ---------------------------------------------------------------------------- what a new user and a TorchRL user meet
 def test_readmes_api_block_lets_every_rollout_run_its_steps():
     """Every rollout of README's API block passes break_when_any_done=False: its last one, the
     baselines', stopped at step 138 when the first of its 8 worlds finished."""

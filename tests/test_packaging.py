@@ -77,7 +77,7 @@ def test_building_the_wheel_warns_about_no_data_folder(tmp_path):
     assert list(tmp_path.glob("flock_torchrl-*.whl"))
 
 
-# ---------------------------------------------------------------------------- torch (issue 53, item 1)
+# ---------------------------------------------------------------------------- torch: the releases the tests run on
 # The torch releases the tests run on, each with where: pyproject admits these minor releases and no
 # other, so `pip install .` never resolves a torch nobody tested (it took 2.14.1+cu130, 5.9 GB).
 TESTED_TORCH = {
@@ -119,7 +119,7 @@ def test_the_torch_range_admits_exactly_the_releases_the_tests_run_on():
     assert "your own CUDA build" in said
 
 
-# ---------------------------------------------------------------------------- the wheel (issue 53, items 1 and 2)
+# ---------------------------------------------------------------------------- the wheel
 @pytest.mark.slow
 def test_the_wheel_names_shipped_checkpoints_as_a_clone_does_and_requires_a_tested_torch(tmp_path):
     """From the installed wheel, in a folder of its own: flock-evaluate policy=policy3_g

@@ -59,7 +59,7 @@ def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_thr
     """``n_cam`` is a policy scenario field: a checkpoint trained with eight camera slots records
     them and every evaluation world takes them (observation 2 + 3 x 2 + 8 x 3 = 32); a shipped
     checkpoint saved before the field existed (its ``policy_scenario`` lacks ``n_cam``) flies
-    with the scenario's three, what it trained with."""
+    with its saved scenario's three, what it trained with."""
     from flock_torchrl import evaluate
     from flock_torchrl.config import shipped_checkpoints_dir
     from flock_torchrl.policies.checkpoint import export_policy
@@ -79,7 +79,8 @@ def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_thr
     result = evaluate(path, "forest", n_episodes=2, env_overrides={"n_uavs": 12}, max_steps=5)
     assert result.episodes["success"].numel() == 2
     older = checkpoint_handle(shipped_checkpoints_dir() / "paper_fit" / "policy3_g" / "seed0.pt")
-    assert "n_cam" not in older.scenario
+    assert "n_cam" not in load_checkpoint(older.origin, kind="policy")["meta"]["policy_scenario"]
+    assert older.scenario["n_cam"] == 3
     env = policy_env(older, "forest", "paper_fit", 2, 0, "cpu", {"n_uavs": 12})
     assert env.cfg.n_cam == 3 and env.reset()["agents", "observation"].shape[-1] == 17
 

@@ -1,5 +1,5 @@
 """Writes tests/data/solo_runs.json: digests of what today's solo training writes, recorded from
-main before the solo and population trainers became one (issue 55), so that
+main before the solo and population trainers became one, so that
 tests/test_solo_reference.py can show the one trainer writes the same, bit for bit.
 
     .venv/bin/python tests/data/make_solo_reference.py [OUT]      (from the repository's root)
