@@ -839,9 +839,9 @@ def test_a_populations_progress_bar_names_its_seeds(tmp_path, monkeypatch):
     labels: list[str] = []
 
     class Recorded(trainer.Progress):
-        def __init__(self, total, counters, description):
+        def __init__(self, total, counters, description, *args, **kwargs):
             labels.append(description)
-            super().__init__(total, counters, description)
+            super().__init__(total, counters, description, *args, **kwargs)
 
     monkeypatch.setattr(trainer, "Progress", Recorded)
     quick = ["logger=none", "scenario.max_steps=30", "experiment.eval_episodes=2", "experiment.max_frames=64",
