@@ -1,12 +1,15 @@
-"""Shared helpers of the test suite: the scripts as a user runs them, in a subprocess, and
-bad scenario values that the config and the env both refuse."""
+"""Shared helpers of the test suite: the scripts as a user runs them, in a subprocess, bad
+scenario values that the config and the env both refuse, and the tiny runs, started and watched,
+of the run-level tests (signals, resume, run folder, checkpoint files, memory, start-up)."""
 
 from __future__ import annotations
 
 import math
 import os
+import shlex
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,3 +73,86 @@ def first_fast(cases) -> list:
 
     return [case if i == 0 else pytest.param(*(case if isinstance(case, tuple) else (case,)), marks=pytest.mark.slow)
             for i, case in enumerate(cases)]
+
+
+# ---------------------------------------------------------------------------- runs as a user starts them
+# The tiny experiment with short episodes and no periodic evaluation: a run of seconds.
+TINY = ["experiment=tiny", "scenario.max_steps=40", "experiment.eval_every_frames=0", "experiment.eval_episodes=2",
+        "progress=false", "threads=1"]
+SHIPPED = ROOT / "checkpoints" / "paper_fit" / "policy3_g" / "seed0.pt"
+
+
+def tiny(*overrides: str):
+    """Policy3-G's config on :data:`TINY` and ``overrides``."""
+    from flock_torchrl.run.trainer import make_train_config
+
+    return make_train_config("policy3_g", "tiny", [*TINY, *overrides])
+
+
+def tiny_pipeline(policy: str = "policy3_g", *overrides: str, logger: str = "csv"):
+    """The learning pipeline's tiny run (tests/test_training.py): the tiny experiment with its own
+    periodic evaluations, 60-step episodes and a logger."""
+    from flock_torchrl.run.trainer import make_train_config
+
+    # Short episodes keep the periodic evaluations (untrained policies never arrive) fast.
+    return make_train_config(policy, "tiny", ["scenario.max_steps=60", "progress=false", f"logger={logger}",
+                                              *overrides])
+
+
+def script(name: str, *args: str, cwd: Path, timeout: float = 300, preexec=None, **env: str):
+    """``python scripts/<name> <args>`` in ``cwd`` (``preexec``: a ``preexec_fn``, e.g. a limit), unchecked."""
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / name), *args], cwd=cwd, env=script_env(**env),
+                          capture_output=True, text=True, timeout=timeout, preexec_fn=preexec)
+
+
+def start(*args: str, cwd: Path, group: bool = False) -> subprocess.Popen:
+    """``python scripts/train.py <args>`` started in ``cwd`` (``group``: in a process group of its own)."""
+    return subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), *args], cwd=cwd, env=script_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=group)
+
+
+def finish(proc: subprocess.Popen, timeout: float = 300) -> tuple[int, str, str]:
+    out, err = proc.communicate(timeout=timeout)
+    return proc.returncode, out, err
+
+
+def wait_until(condition, proc: subprocess.Popen, timeout: float = 180) -> None:
+    deadline = time.time() + timeout
+    while not condition():
+        if proc.poll() is not None:
+            raise AssertionError(f"the run ended early: {proc.communicate()}")
+        if time.time() > deadline:
+            proc.kill()
+            raise AssertionError("timed out waiting")
+        time.sleep(0.05)
+
+
+def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120) -> None:
+    """Until ``path`` exists (the run's first checkpoint, say)."""
+    wait_until(path.exists, proc, timeout)
+
+
+def frames_at(path: Path) -> int:
+    """The frames of the checkpoint at ``path``; -1 while there is none (or it is being written)."""
+    from flock_torchrl import CheckpointError
+    from flock_torchrl.policies.checkpoint import load_checkpoint
+
+    try:
+        return load_checkpoint(path)["counters"]["frames"]
+    except (CheckpointError, FileNotFoundError):
+        return -1
+
+
+def resume_line(err: str) -> list[str]:
+    """The command a stopped run printed to continue it, as argv (run from the repository)."""
+    (line,) = [x for x in err.splitlines() if x.startswith("stopped by")]
+    command = shlex.split(line.split("resume with: ", 1)[1])
+    assert command[:2] == ["python", "scripts/train.py"], command
+    return [sys.executable, *command[1:]]
+
+
+def one_line(err: str, start: str) -> None:
+    """``err`` is one line, ``error: <start>...``, and no traceback."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {start}"), err
+    assert "Traceback" not in err

@@ -1,22 +1,13 @@
 """The learning pipeline end to end on the `tiny` experiment (seconds per run)."""
 
-import pickle
-
 import pytest
 import torch
+from helpers import tiny_pipeline
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from flock_torchrl import FlockingEnv, load_policy
-from flock_torchrl.policies.checkpoint import CheckpointError, load_checkpoint
+from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
-
-
-def tiny(policy="policy3_g", *overrides, logger="csv"):
-    # Short episodes keep the periodic evaluations (untrained policies never arrive) fast.
-    return make_train_config(policy, "tiny", ["scenario.max_steps=60", "progress=false", f"logger={logger}",
-                                              *overrides])
-
 
 
 def ckpt_reading(result) -> str:
@@ -27,7 +18,7 @@ def ckpt_reading(result) -> str:
 
 @pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyd_g", "ddpg"), ("policyp_g", "ppo")])
 def test_tiny_run_of_each_learner(tmp_path, policy, algo):
-    result = train(tiny(policy), tmp_path / "run")
+    result = train(tiny_pipeline(policy), tmp_path / "run")
     ckpt = load_checkpoint(result.checkpoint)
     assert ckpt["meta"]["algo"] == algo and ckpt["meta"]["policy_id"] == policy
     assert ckpt["counters"]["frames"] >= 160 and ckpt["counters"]["updates"] > 0
@@ -56,76 +47,13 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
         assert td["agents", "action"].abs().max() <= 1
 
 
-@pytest.mark.slow
-def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
-    whole = train(tiny(), tmp_path / "whole")
-    first = train(tiny("policy3_g", "experiment.max_frames=96"), tmp_path / "split")
-    assert first.frames == 96
-    resumed = train(tiny("policy3_g", "resume=true"), tmp_path / "split")
-    a = load_checkpoint(whole.checkpoint)
-    b = load_checkpoint(resumed.checkpoint)
-    assert a["counters"]["frames"] == b["counters"]["frames"]
-    assert a["counters"]["updates"] == b["counters"]["updates"]
-    assert a["counters"]["episodes"] == b["counters"]["episodes"]
-    for key, value in a["actor"].items():
-        assert torch.equal(value, b["actor"][key]), key
-    assert torch.equal(a["learner"]["loss"]["log_alpha"], b["learner"]["loss"]["log_alpha"])
-    # the episode log has no duplicate rows after the resume
-    lines = (tmp_path / "split" / "episodes.csv").read_text().splitlines()[1:]
-    assert [int(r.split(",")[0]) for r in lines] == list(range(1, len(lines) + 1))
-
-
-def test_resume_without_checkpoint_is_refused(tmp_path):
-    with pytest.raises(CheckpointError, match="no checkpoint"):
-        train(tiny("policy3_g", "resume=true"), tmp_path / "run")
-
-
-def test_fresh_run_never_overwrites_an_existing_checkpoint(tmp_path):
-    result = train(tiny(), tmp_path / "run")
-    before = result.checkpoint.read_bytes()
-    with pytest.raises(CheckpointError, match="already holds a checkpoint"):
-        train(tiny(), tmp_path / "run")
-    assert result.checkpoint.read_bytes() == before
-
-
-def test_mismatched_checkpoint_is_refused(tmp_path):
-    result = train(tiny(), tmp_path / "run")
-    before = result.checkpoint.read_bytes()
-    config_before = (result.run_dir / "config.yaml").read_text()
-    other = tiny("policy3", "resume=true")  # critic on the observation, same folder
-    with pytest.raises(CheckpointError, match="critic_input"):
-        train(other, tmp_path / "run")
-    assert result.checkpoint.read_bytes() == before
-    assert (result.run_dir / "config.yaml").read_text() == config_before
-
-
-def test_corrupted_checkpoint_is_refused(tmp_path):
-    path = tmp_path / "last.pt"
-    path.write_bytes(b"\x80\x04not a checkpoint")
-    with pytest.raises(CheckpointError, match="corrupted"):
-        load_policy(path)
-
-
-class _Boom:
-    def __reduce__(self):
-        return (print, ("this must never run",))
-
-
-def test_checkpoint_with_code_never_runs(tmp_path, capsys):
-    path = tmp_path / "evil.pt"
-    torch.save({"format": "flock_torchrl/checkpoint-v2", "payload": _Boom()}, path)
-    with pytest.raises(CheckpointError):
-        load_checkpoint(path)
-    assert "this must never run" not in capsys.readouterr().out
-
-
 @pytest.mark.parametrize("cudagraphs", [False, True], ids=["eager", "captured"])
 def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch, cudagraphs):
     """The captured update keeps its finite-loss flags on the device and checks them before every
     checkpoint: a diverged run stops the same way and keeps its last good checkpoint."""
     from torchrl.data import TensorDictReplayBuffer
 
-    cfg = tiny("policy3_g", "experiment.max_frames=320", f"cudagraphs={str(cudagraphs).lower()}")
+    cfg = tiny_pipeline("policy3_g", "experiment.max_frames=320", f"cudagraphs={str(cudagraphs).lower()}")
     calls = {"n": 0}
     original = TensorDictReplayBuffer.sample
 
@@ -145,33 +73,16 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypa
         assert torch.isfinite(value).all()
 
 
-def test_unpicklable_junk_in_checkpoint_dir_is_a_clear_error(tmp_path):
-    (tmp_path / "last.pt").write_bytes(pickle.dumps({"format": "something else"}))
-    with pytest.raises(CheckpointError):
-        load_checkpoint(tmp_path)
-
-
-def test_resume_auto_starts_fresh_then_leaves_a_finished_run_unchanged(tmp_path):
-    cfg = tiny("policy3_g", "resume=auto")
-    first = train(cfg, tmp_path / "run")  # no checkpoint yet: a fresh run
-    before = load_checkpoint(first.checkpoint)
-    again = train(cfg, tmp_path / "run")  # finished: nothing more is collected or learned
-    after = load_checkpoint(again.checkpoint)
-    assert after["counters"]["frames"] == before["counters"]["frames"]
-    for key, value in before["actor"].items():
-        assert torch.equal(value, after["actor"][key]), key
-
-
 def test_wandb_logger_works_offline(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_MODE", "offline")
-    train(tiny("policy3_g", "experiment.max_frames=48", logger="wandb"), tmp_path / "wb")
+    train(tiny_pipeline("policy3_g", "experiment.max_frames=48", logger="wandb"), tmp_path / "wb")
     assert list((tmp_path / "wb" / "wandb").glob("offline-run-*")), "no offline wandb run was written"
 
 
 @pytest.mark.slow
 def test_several_collector_processes(tmp_path):
     """workers=2: TorchRL's MultiSyncCollector over two env processes, same learner."""
-    result = train(tiny("policy3_g", "experiment.workers=2", "experiment.max_frames=64"), tmp_path / "run")
+    result = train(tiny_pipeline("policy3_g", "experiment.workers=2", "experiment.max_frames=64"), tmp_path / "run")
     ckpt = load_checkpoint(result.checkpoint)
     assert ckpt["counters"]["frames"] >= 64 and ckpt["counters"]["updates"] > 0
     assert "env_state" not in ckpt  # several processes: a resume restarts their episodes
@@ -208,9 +119,9 @@ def test_a_compiled_runs_first_update_is_booked_as_compile(tmp_path):
     """The time split keeps torch.compile's work on the loss apart from the updates it speeds up
     (the paper-loop benchmark leaves it out); an eager run books none. The env's steps, compiled or
     not, are the collection's (timed from outside the env)."""
-    compiled = train(tiny("policy3_g", "compile=true", "experiment.max_frames=64"), tmp_path / "compiled")
-    eager = train(tiny("policy3_g", "experiment.max_frames=64"), tmp_path / "eager")
-    step = train(tiny("policy3_g", "compile=step", "experiment.max_frames=64"), tmp_path / "step")
+    compiled = train(tiny_pipeline("policy3_g", "compile=true", "experiment.max_frames=64"), tmp_path / "compiled")
+    eager = train(tiny_pipeline("policy3_g", "experiment.max_frames=64"), tmp_path / "eager")
+    step = train(tiny_pipeline("policy3_g", "compile=step", "experiment.max_frames=64"), tmp_path / "step")
     assert compiled.updates > 1 and compiled.split["compile"] > 0 and compiled.split["update"] > 0
     assert eager.split["compile"] == 0 and eager.split["update"] > 0
     # Only the step compiles: its compilation is part of the collection, the loss's updates are eager.
@@ -228,7 +139,7 @@ def test_compile_step_compiles_the_env_and_leaves_the_loss_eager():
     from flock_torchrl.run.trainer import make_env
 
     for mode, step, loss in (("step", True, False), ("loss", False, True)):
-        cfg = TrainConfig.from_config(tiny("policy3_g", f"compile={mode}"))
+        cfg = TrainConfig.from_config(tiny_pipeline("policy3_g", f"compile={mode}"))
         env = make_env(cfg, 2, torch.device("cpu"), 0, os.getpid())
         learner = make_learner(env, cfg.algo, cfg.policy.critic_input, compile=cfg.compile_loss)
         assert env.compile_step is step and (learner.loss_fn is not learner.loss) is loss, mode

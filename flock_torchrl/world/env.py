@@ -12,7 +12,6 @@ from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
-from ..capture import captured
 from ..config.scenario import ScenarioConfig
 from .geometry import Obstacles
 from .keys import EXTRAS, env_output, env_specs, extras_of
@@ -20,10 +19,10 @@ from .metrics import new_accumulator, summary_values
 from .reserve import Reserve
 from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout, static_obstacles
-from .state import (ACTION, STATE_KEYS, check_seed, checked_action, checked_reset_mask, checked_worlds, empty_state,
-                    placed_state, torch_device, world_index)
-from .step import (STEP_COMPILE_OPTIONS, WHOLE_WARMUP, noise_draws, sense, transition, whole_step_guards,
-                   world_obstacles)
+from .state import (ACTION, STATE_KEYS, check_counts, check_seed, checked_action, checked_reset_mask, checked_worlds,
+                    empty_state, placed_state, torch_device, world_index)
+from .step import (STEP_COMPILE_OPTIONS, WHOLE_WARMUP, noise_draws, sense, step_function, transition,
+                   whole_step_guards, world_obstacles)
 
 class FlockingEnv(EnvBase):
     """Multi-UAV flocking (Bai et al. 2024) as a batched, torch-native TorchRL environment.
@@ -101,18 +100,12 @@ class FlockingEnv(EnvBase):
             raise TypeError(f"scenario: a ScenarioConfig or a scenario's name, got {type(scenario).__name__} "
                             "(flock_torchrl.scenario_config(mapping) checks a mapping)")
         check_spawn_feasible(cfg)
-        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        check_counts(num_envs, reset_pool)
         check_seed(seed)
-        if not isinstance(reset_pool, int) or isinstance(reset_pool, bool) or reset_pool < 0:
-            raise ValueError(f"reset_pool must be an integer >= 0 (0: no reserve of fresh worlds), got {reset_pool!r}")
         super().__init__(device=torch_device(device), batch_size=torch.Size([num_envs]))
         self.reset_pool = reset_pool
         groups, per_group = self._reserve_groups()
-        if reset_pool and reset_pool < per_group:
-            worlds = "num_envs" if groups == 1 else "worlds per member"
-            raise ValueError(f"reset_pool must be 0 or at least the {worlds} ({per_group}): one step can reset "
-                             f"every world, got {reset_pool}")
+        check_counts(num_envs, reset_pool, per_group, groups)
         self.cfg = cfg
         self.num_envs = num_envs
         self.n_agents = cfg.n_uavs
@@ -124,15 +117,7 @@ class FlockingEnv(EnvBase):
         self.compile_step = bool(compile_step)
         self.check_actions = bool(check_actions)
         self.capture_step = bool(capture_step)
-        # Compiled or captured, the step measures every UAV pair and every (beam, obstacle) pair: static
-        # shapes. Called (state, sensed, episode, action, normals): what changes, all tensors (what a
-        # captured function is given each call is copied into its graph's inputs); the obstacles and
-        # the scenario are bound (a graph holds them as they are).
-        step = functools.partial(transition, static_shapes=self.compile_step or self.capture_step)
-        if self.compile_step:
-            step = torch.compile(step, dynamic=False, fullgraph=True, options=STEP_COMPILE_OPTIONS)
-        self._transition = captured(functools.partial(step, static=self._static, cfg=cfg), self.device,
-                                    self.capture_step)
+        self._transition = step_function(self._static, cfg, self.device, self.compile_step, self.capture_step)
         self._in_step = False              # step_and_maybe_reset counted this step's hand-out of the reserve
         self._normals: dict | None = None  # sensor noise drawn before a whole compiled step
         self._compiled_whole = bool(self.compile_step and reset_pool and not self.capture_step)  # read in the trace
@@ -429,34 +414,11 @@ class FlockingEnv(EnvBase):
     # ------------------------------------------------------------------ rendering
     def render(self, mode: str = "rgb_array", env_index: int = 0, agent_index_focus: int | None = None,
                **kwargs: Any):
-        """An RGB frame ``[H, W, 3]`` (uint8) of world ``env_index``: obstacles, goal, UAVs,
-        headings, fields of view (``size``, ``extent``, ``show_fov``, ``title``:
-        :func:`flock_torchrl.world.frame.render_frame`).
+        """An RGB frame ``[H, W, 3]`` (uint8) of world ``env_index`` (:func:`~.frame.render_env`: the
+        options, and the call TorchRL's multi-agent scripts make for VMAS)."""
+        from .frame import render_env
 
-        Takes the call TorchRL's multi-agent scripts make for VMAS,
-        ``render(mode="rgb_array", agent_index_focus=None, visualize_when_possible=True)``:
-        ``agent_index_focus`` centres a 20 m view on that UAV (``None``: the whole world);
-        VMAS's other display options (:data:`VMAS_RENDER_OPTIONS`) have no meaning here and are ignored."""
-        if mode != "rgb_array":
-            raise ValueError(f"render mode {mode!r} is not supported; use 'rgb_array'")
-        from .frame import render_frame
-
-        unknown = sorted(set(kwargs) - FRAME_OPTIONS - VMAS_RENDER_OPTIONS)
-        if unknown:
-            raise TypeError(f"render: unknown option(s) {unknown}; known: {sorted(FRAME_OPTIONS)} (and VMAS's "
-                            f"{sorted(VMAS_RENDER_OPTIONS)}, ignored)")
-        options = {k: v for k, v in kwargs.items() if k in FRAME_OPTIONS}
-        if agent_index_focus is not None and "extent" not in options:
-            x, y = self.world["position"][env_index, int(agent_index_focus), :2].tolist()
-            options["extent"] = (x - 10.0, x + 10.0, y - 10.0, y + 10.0)
-        return render_frame(self, env_index=env_index, **options)
-
-
-# render(): the frame's options, and VMAS's display options TorchRL's scripts pass (ignored).
-FRAME_OPTIONS = frozenset({"size", "extent", "show_fov", "title"})
-VMAS_RENDER_OPTIONS = frozenset({"visualize_when_possible", "plot_position_function", "plot_position_function_range",
-                                 "plot_position_function_cmap_range", "plot_position_function_cmap_alpha",
-                                 "plot_position_function_precision", "plot_position_function_cmap_name"})
+        return render_env(self, mode, env_index, agent_index_focus, **kwargs)
 
 
 __all__ = ["ACTION", "EXTRAS", "FlockingEnv"]

@@ -353,6 +353,35 @@ def frame_image(cfg: Any, state: WorldState, extent: tuple[float, float, float, 
     return _to_rgb(fig.canvas, height, width)
 
 
+# render_env(): the frame's options, and VMAS's display options TorchRL's scripts pass (ignored).
+FRAME_OPTIONS = frozenset({"size", "extent", "show_fov", "title"})
+VMAS_RENDER_OPTIONS = frozenset({"visualize_when_possible", "plot_position_function", "plot_position_function_range",
+                                 "plot_position_function_cmap_range", "plot_position_function_cmap_alpha",
+                                 "plot_position_function_precision", "plot_position_function_cmap_name"})
+
+
+def render_env(env: Any, mode: str = "rgb_array", env_index: int = 0, agent_index_focus: int | None = None,
+               **kwargs: Any) -> np.ndarray:
+    """``FlockingEnv.render``: an RGB frame ``[H, W, 3]`` (uint8) of world ``env_index``: obstacles, goal,
+    UAVs, headings, fields of view (``size``, ``extent``, ``show_fov``, ``title``: :func:`render_frame`).
+
+    Takes the call TorchRL's multi-agent scripts make for VMAS,
+    ``render(mode="rgb_array", agent_index_focus=None, visualize_when_possible=True)``:
+    ``agent_index_focus`` centres a 20 m view on that UAV (``None``: the whole world); VMAS's other
+    display options (:data:`VMAS_RENDER_OPTIONS`) have no meaning here and are ignored."""
+    if mode != "rgb_array":
+        raise ValueError(f"render mode {mode!r} is not supported; use 'rgb_array'")
+    unknown = sorted(set(kwargs) - FRAME_OPTIONS - VMAS_RENDER_OPTIONS)
+    if unknown:
+        raise TypeError(f"render: unknown option(s) {unknown}; known: {sorted(FRAME_OPTIONS)} (and VMAS's "
+                        f"{sorted(VMAS_RENDER_OPTIONS)}, ignored)")
+    options = {k: v for k, v in kwargs.items() if k in FRAME_OPTIONS}
+    if agent_index_focus is not None and "extent" not in options:
+        x, y = env.world["position"][env_index, int(agent_index_focus), :2].tolist()
+        options["extent"] = (x - 10.0, x + 10.0, y - 10.0, y + 10.0)
+    return render_frame(env, env_index=env_index, **options)
+
+
 def render_frame(env: Any, env_index: int = 0, size: int | tuple[int, int] = 512,
                  extent: tuple[float, float, float, float] | None = None, show_fov: bool = True,
                  title: str | None = None) -> np.ndarray:

@@ -7,7 +7,7 @@ what the process's own limits leave (``ulimit -v`` / ``RLIMIT_AS`` and ``ulimit 
 (``memory.max`` less ``memory.current``). :func:`check_memory` refuses an estimate above it
 with one :class:`~flock_torchrl.config.ConfigError` naming the key that costs most, the
 estimate and the limit. The estimates (bytes) are upper bounds of the big tensors, measured
-against peak resident memory in ``tests/test_faults.py``:
+against peak resident memory in ``tests/test_memory.py``:
 
 * :func:`train_bytes` — a training run, its checkpoint writes included;
 * :func:`world_bytes` — one batched world (``[N]`` state and sensing, ``[N, N]`` pairwise terms);

@@ -229,6 +229,19 @@ def world_index(index: Any, batch: int, device: torch.device) -> torch.Tensor:
     return index
 
 
+def check_counts(num_envs: Any, reset_pool: Any, per_group: int | None = None, groups: int = 1) -> None:
+    """An env's ``num_envs`` (an integer >= 1) and ``reset_pool`` (an integer >= 0; with ``per_group``
+    worlds per group, 0 or at least that many: one step can reset every world); else a ``ValueError``."""
+    if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+        raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+    if not isinstance(reset_pool, int) or isinstance(reset_pool, bool) or reset_pool < 0:
+        raise ValueError(f"reset_pool must be an integer >= 0 (0: no reserve of fresh worlds), got {reset_pool!r}")
+    if per_group is not None and reset_pool and reset_pool < per_group:
+        worlds = "num_envs" if groups == 1 else "worlds per member"
+        raise ValueError(f"reset_pool must be 0 or at least the {worlds} ({per_group}): one step can reset "
+                         f"every world, got {reset_pool}")
+
+
 def check_seed(seed: Any) -> None:
     """``seed``: ``None`` or an integer in [0, 2**64 - 1] (what the env's generators take)."""
     if seed is None:
@@ -254,6 +267,6 @@ def torch_device(device: Any) -> torch.device:
     return dev
 
 
-__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_like", "check_seed", "check_state", "checked_action",
+__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_counts", "check_like", "check_seed", "check_state", "checked_action",
            "checked_reset_mask", "checked_worlds", "empty_state", "fill_absent", "placed_state", "state_shapes",
            "torch_device", "world_index", "world_state"]

@@ -14,11 +14,13 @@ and dtypes of :data:`~.state.WORLD_STATE`; the metrics accumulator is a separate
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Mapping, Sequence
 
 import torch
 
+from ..capture import captured
 from ..config import ScenarioConfig
 from ..config.scenario import FULL_HEIGHT
 from .dynamics import (action_to_command, clamp_altitude, clip_command, first_order_step, reflect_in_box,
@@ -251,6 +253,19 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         has_prev_action=torch.ones_like(state["has_prev_action"]), terminated=terminated[:, None],
         truncated=(episode["steps"] >= cfg.max_steps)[:, None] & ~terminated[:, None])
     return new, now, episode, reward
+
+
+def step_function(static: Obstacles, cfg: ScenarioConfig, device: torch.device, compile_step: bool = False,
+                  capture_step: bool = False):
+    """The env's step, :func:`transition` with its obstacles and scenario bound: compiled or captured
+    (on a GPU, a CUDA graph: ``flock_torchrl.capture``), it measures every UAV pair and every (beam,
+    obstacle) pair (static shapes). Called ``(state, sensed, episode, action, normals=...)``: what
+    changes, all tensors (what a captured function is given each call is copied into its graph's
+    inputs); the obstacles and the scenario are bound (a graph holds them as they are)."""
+    step = functools.partial(transition, static_shapes=compile_step or capture_step)
+    if compile_step:
+        step = torch.compile(step, dynamic=False, fullgraph=True, options=STEP_COMPILE_OPTIONS)
+    return captured(functools.partial(step, static=static, cfg=cfg), device, capture_step)
 
 
 def transition(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Tensor, static: Obstacles,
