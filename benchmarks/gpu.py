@@ -32,6 +32,7 @@ if not __package__:  # `python benchmarks/gpu.py`: the repository's root, so `be
 import torch  # noqa: E402
 
 from benchmarks.population import recipe_transitions, row_in_child  # noqa: E402
+from benchmarks.rows import env_rows, format_rows  # noqa: E402
 
 # The paper's study: eight learned policies, ten seeds each, and about 816k updates per run
 # (docs/results.md: Policy3-G's paper-recipe run, 816,026 updates in 5000 episodes).
@@ -130,8 +131,6 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
     compilation included). ``device="cpu"`` with small sizes is a dry run of the same code, and
     ``tests/test_benchmark.py`` runs them with ``device="cuda"`` on CUDA simulated on the CPU
     (``tests/simulated_cuda.py``), so a GPU's scarce minutes are not spent finding their bugs."""
-    from benchmarks.throughput import env_rows, format_rows
-
     lines: list[str] = []
 
     def say(*new: str) -> None:

@@ -6,7 +6,7 @@ actions when worlds end often (the bare world: no instinct) against Policy3-G's 
     .venv/bin/python -m benchmarks.reset [--batch 1024] [--rounds 3]
 
 Candidates alternate round by round in one process and each keeps its best round
-(``benchmarks.throughput.paired``), so load from other processes hits all of them alike.
+(``benchmarks.timing.paired``), so load from other processes hits all of them alike.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ if not __package__:  # `python benchmarks/step.py`: the repository's root, so `b
 
 import torch  # noqa: E402
 
-from benchmarks.throughput import paired  # noqa: E402  best of alternated rounds, after a warm-up
+from benchmarks.timing import paired  # noqa: E402  best of alternated rounds, after a warm-up
 from flock_torchrl import FlockingEnv  # noqa: E402
 from flock_torchrl.world.state import STATE_KEYS  # noqa: E402
 

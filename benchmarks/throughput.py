@@ -48,6 +48,7 @@ from benchmarks.gpu import gpu_lines, projection_line
 from benchmarks.host_reads import host_read_lines, launch_lines
 from benchmarks.population import population_lines
 from benchmarks.reset import reset_lines
+from benchmarks.rows import Row, env_rows, format_rows, random_stepper
 from benchmarks.threed import threed_lines
 from benchmarks.timing import paired
 
@@ -83,73 +84,12 @@ class CheckFirst(Callback):
         checked(config)
 
 
-@dataclass
-class Row:
-    what: str
-    ours: float
-    baseline: float
-    unit: str
-    note: str = ""
-
-    @property
-    def ratio(self) -> float:
-        return self.ours / self.baseline if self.baseline else math.nan
-
-
-def _stepper(env, steps: int) -> Callable[[], None]:
-    td = env.reset()
-    state = {"td": td}
-
-    def go() -> None:
-        td = state["td"]
-        for _ in range(steps):
-            td = env.rand_action(td)
-            td = env.step_and_maybe_reset(td)[1]
-        state["td"] = td
-    return go
-
-
-def vmas_env(num_envs: int, device: str = "cpu"):
-    """TorchRL's VmasEnv flocking scenario with five agents, or ``None`` without vmas."""
-    try:
-        from torchrl.envs import VmasEnv
-
-        return VmasEnv("flocking", num_envs=num_envs, n_agents=5, continuous_actions=True, device=device, seed=0)
-    except Exception:  # vmas is the optional `bench` extra
-        return None
-
-
-def env_rows(batches=(64, 1024, 4096), steps: int = 20, repeat: int = 3, device: str = "cpu",
-             compile_step: bool = True) -> list[Row]:
-    rows = []
-    for b in batches:
-        n = max(3, steps * 64 // b)
-        candidates = {"eager": _stepper(FlockingEnv("train", b, device, 0, policy_id="policy3_g"), n)}
-        if compile_step:
-            candidates["compiled"] = _stepper(FlockingEnv("train", b, device, 0, policy_id="policy3_g",
-                                                          compile_step=True), n)
-        vmas = vmas_env(b, device)
-        if vmas is not None:
-            candidates["vmas"] = _stepper(vmas, n)
-        best = paired(candidates, repeat)
-        base = b * n / best["vmas"] if "vmas" in best else math.nan
-        note = "" if vmas is not None else "vmas not installed: pip install -e .[bench]"
-        for name in ("eager", "compiled"):
-            if name in best:
-                rows.append(Row(f"env steps, B={b}, N=5 ({name} vs VmasEnv flocking)", b * n / best[name], base,
-                                "env-steps/s", note))
-        if "compiled" in best:
-            rows.append(Row(f"env steps, B={b}, N=5 (compiled vs eager)", b * n / best["compiled"],
-                            b * n / best["eager"], "env-steps/s"))
-    return rows
-
-
 def scale_rows(total: int = 5120, sizes=(5, 20, 50, 100), steps: int = 4, repeat: int = 3,
                reading: str = "paper_fit", device: str = "cpu") -> list[Row]:
     """UAV-steps/s at each swarm size with B x N = ``total``, against N = 5."""
     envs = {n: FlockingEnv("train", max(1, total // n), device, 0, reading=reading, policy_id="policy3_g", n_uavs=n)
             for n in sizes}
-    best = paired({n: _stepper(env, steps) for n, env in envs.items()}, repeat)
+    best = paired({n: random_stepper(env, steps) for n, env in envs.items()}, repeat)
     rate = {n: envs[n].num_envs * n * steps / best[n] for n in sizes}
     rows = []
     for n in sizes:
@@ -314,17 +254,6 @@ def run_all(quick: bool = False, device: str = "cpu", notes: list[str] | None = 
     return rows
 
 
-def format_rows(rows: list[Row]) -> str:
-    lines = [f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), "
-             f"CUDA: {torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none'}",
-             f"{'benchmark':<78} {'ours':>12} {'baseline':>12} {'ratio':>8}  unit"]
-    for r in rows:
-        ratio = "" if math.isnan(r.ratio) else f"{r.ratio:7.2f}x"
-        lines.append(f"{r.what:<78} {r.ours:>12.1f} {r.baseline:>12.1f} {ratio:>8}  {r.unit}"
-                     + (f"  ({r.note})" if r.note else ""))
-    return "\n".join(lines)
-
-
 def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     """Every row (``cfg``: a checked :class:`BenchmarkConfig`), printed and written to
     ``out_dir/benchmark.md``."""
@@ -371,5 +300,5 @@ def benchmark_page(text: str, quick: bool, threads: int, load: float) -> str:
             f"compare candidates measured in the same process).\n\n```\n{text}\n```\n")
 
 
-__all__ = ["BenchmarkConfig", "CheckFirst", "PreviousSACUpdate", "Row", "benchmark_app", "benchmark_page", "checked",
-           "env_rows", "format_rows", "learner_rows", "loop_rows", "replay_batches", "run_all", "scale_rows"]
+__all__ = ["BenchmarkConfig", "CheckFirst", "PreviousSACUpdate", "benchmark_app", "benchmark_page", "checked",
+           "learner_rows", "loop_rows", "replay_batches", "run_all", "scale_rows"]

@@ -14,8 +14,9 @@ import torch
 from helpers import ROOT, script_env
 
 from benchmarks.reset import reset_lines, resetter
+from benchmarks.rows import format_rows
 from benchmarks.step import stepper
-from benchmarks.throughput import BenchmarkConfig, CheckFirst, format_rows, learner_rows
+from benchmarks.throughput import BenchmarkConfig, CheckFirst, learner_rows
 from flock_torchrl import ConfigError, FlockingEnv
 
 

@@ -1,6 +1,7 @@
 """The package's layers: imports only point down config/io -> world -> policies -> run -> report -> cli;
 the repository's tools above it (``benchmarks/``, ``scripts/``) use its public names and nothing
-in the package imports them."""
+in the package imports them; no module of the whole tree, tools and tests included, imports itself
+back through others."""
 
 import ast
 from pathlib import Path
@@ -142,49 +143,87 @@ def test_every_test_file_keeps_a_fast_test_and_make_test_leaves_out_only_slow_on
     assert "make test-all" in (ROOT / ".ci" / "run").read_text()
 
 
+# Each part of the tree and the folder its modules are imported from: the package and benchmarks/
+# from the repository's root (``benchmarks.gpu``), scripts/ and examples/ from their own folders
+# (``from _start import start``), the tests from theirs (``from helpers import ROOT``).
+IMPORT_ROOTS = {"flock_torchrl": ROOT, "benchmarks": ROOT, "scripts": ROOT / "scripts", "examples": ROOT / "examples",
+                "tests": ROOT / "tests"}
+
+
+def tree_modules() -> dict[str, Path]:
+    """Every module of the tree by the name it is imported as (a package by its ``__init__``)."""
+    modules: dict[str, Path] = {}
+    for part, base in IMPORT_ROOTS.items():
+        for path in sorted((ROOT / part).rglob("*.py")):
+            name = ".".join(path.relative_to(base).with_suffix("").parts).removesuffix(".__init__")
+            assert name not in modules, f"{path.relative_to(ROOT)} and {modules[name].relative_to(ROOT)} are both {name}"
+            modules[name] = path
+    return modules
+
+
 def module_graph() -> dict[str, set[str]]:
-    """Every module of the package -> the package's modules it imports, at the top or inside a
-    function alike (``from .x import name`` counts ``x.name`` where that is a module)."""
-    modules = {".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): p
-               for p in PACKAGE.rglob("*.py")}
+    """Every module of the tree -> the tree's modules it imports, at the top or inside a function
+    alike (``from x import name`` counts ``x.name`` where that is a module)."""
+    modules = tree_modules()
     graph = {}
     for module, path in modules.items():
+        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
         found = set()
-        for name in imports(path):
-            found.add(name if name in modules else name.rsplit(".", 1)[0])
-        package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
         for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.level:
-                base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                stem = ".".join(base + ([node.module] if node.module else []))
-                found.update(f"{stem}.{a.name}" for a in node.names if f"{stem}.{a.name}" in modules)
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                stem = node.module or ""
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    stem = ".".join([p for p in base if p] + ([node.module] if node.module else []))
+                found.add(stem)
+                found.update(f"{stem}.{a.name}" for a in node.names)
         graph[module] = {m for m in found if m in modules and m != module}
     return graph
 
 
-def test_no_import_circle():
-    """No module imports (directly or through others) a module that imports it back: an import
-    inside a function does not hide a circle from this test. A package's ``__init__`` may import
-    its own modules (that is what it is for): those edges are left out."""
-    graph = module_graph()
+def import_circle(graph: dict[str, set[str]]) -> list[str]:
+    """A circle of ``graph`` (``[a, b, ..., a]``), or ``[]``. A package's ``__init__`` may import its
+    own modules (that is what it is for): those edges are left out."""
     graph = {m: {d for d in deps if not (d.startswith(m + ".") or m.startswith(d + "."))} for m, deps in graph.items()}
     state: dict[str, int] = {}
     stack: list[str] = []
 
-    def visit(module: str) -> None:
+    def visit(module: str) -> list[str]:
         state[module] = 1
         stack.append(module)
         for dep in sorted(graph[module]):
             if state.get(dep) == 1:
-                raise AssertionError("import circle: " + " -> ".join(stack[stack.index(dep):] + [dep]))
-            if dep not in state:
-                visit(dep)
+                return stack[stack.index(dep):] + [dep]
+            if dep not in state and (circle := visit(dep)):
+                return circle
         stack.pop()
         state[module] = 2
+        return []
 
     for module in sorted(graph):
-        if module not in state:
-            visit(module)
+        if module not in state and (circle := visit(module)):
+            return circle
+    return []
+
+
+def test_the_graph_sees_the_whole_tree_and_imports_inside_functions():
+    graph = module_graph()
+    assert {"flock_torchrl.world.env", "benchmarks.gpu", "train", "goal_separation", "helpers"} <= set(graph)
+    assert "_start" in graph["train"] and "helpers" in graph["test_shipped_files"]
+    assert "flock_torchrl.run.launch" in graph["benchmarks.throughput"]  # imported inside loop_rows
+    assert "simulated_cuda" in graph["simulated_cuda_site.sitecustomize"]
+    assert import_circle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert import_circle({"a": {"a.b"}, "a.b": {"a"}}) == []  # a package and its own module
+
+
+def test_no_import_circle():
+    """No module of the tree (the package, benchmarks/, scripts/, examples/, the tests and their
+    helpers) imports, directly or through others, a module that imports it back: an import inside
+    a function does not hide a circle from this test."""
+    circle = import_circle(module_graph())
+    assert not circle, "import circle: " + " -> ".join(circle)
 
 
 def test_only_compose_touches_hydra_and_importing_the_package_registers_and_reads_nothing():
