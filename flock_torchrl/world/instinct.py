@@ -8,7 +8,8 @@ import torch
 
 from ..config.scenario import INSTINCT_MODES, Laser
 from .geometry import length, stored
-from .sensors import Neighbours, beam_return_offset
+from .laser import beam_return_offset
+from .sensors import Neighbours
 
 
 def rotate_90(vec: torch.Tensor) -> torch.Tensor:

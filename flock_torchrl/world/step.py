@@ -29,8 +29,9 @@ from .geometry import Obstacles, circular_mean, constant, length, nearest_obstac
 from .instinct import instinct_command
 from .metrics import step_statistics, summary_values, update_episode
 from .reward import cohesion_range, total_reward
-from .sensors import (add_sensor_noise, camera_observation, goal_observation, goal_polar, laser_scan, near_neighbours,
-                      scan_observation, sensor_normals, shortest_beams, swarm_centre_state, visibility)
+from .laser import laser_scan, scan_observation, shortest_beams
+from .sensors import (add_sensor_noise, camera_observation, goal_observation, goal_polar, near_neighbours,
+                      sensor_normals, swarm_centre_state, visibility)
 from .state import world_state
 
 Tensors = Mapping[str, torch.Tensor]

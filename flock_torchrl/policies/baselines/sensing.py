@@ -22,8 +22,8 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from ...config.scenario import Laser
-from ...world.sensors import (add_sensor_noise, beam_azimuths, beam_offsets, near_neighbours, observe_neighbours,
-                              ring_tables)
+from ...world.laser import beam_azimuths, beam_offsets, ring_tables
+from ...world.sensors import add_sensor_noise, near_neighbours, observe_neighbours
 
 
 @dataclass
