@@ -126,8 +126,6 @@ def test_a_corrupted_paper_recipe_checkpoint_is_found_before_the_first_row(tmp_p
 # ---------------------------------------------------------------------------- crafted: digest-valid, one field wrong
 def crafted(path: Path, how: str) -> Path:
     """A digest-valid checkpoint of the shipped Policy3-G, changed in one field."""
-    import torch
-
     from flock_torchrl.policies import checkpoint as ck
 
     payload = ck.load_checkpoint(SHIPPED)
@@ -156,9 +154,6 @@ CRAFTED = {"kind": "kind 'weird' is not a checkpoint kind (training, policy)",
 
 @pytest.mark.parametrize("how", sorted(CRAFTED))
 def test_a_crafted_digest_valid_checkpoint_is_refused_naming_the_field(tmp_path, how):
-    from flock_torchrl import CheckpointError
-    from flock_torchrl.policies.checkpoint import load_checkpoint, load_policy
-
     bad = crafted(tmp_path / "bad.pt", how)
     first = next(iter(load_checkpoint(SHIPPED)["actor"]))
     with pytest.raises(CheckpointError) as info:

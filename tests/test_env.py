@@ -492,10 +492,6 @@ def test_copies_of_the_env_share_the_default_seed_until_a_batched_env_seeds_them
 
 @pytest.mark.parametrize("scenario", ["s1", "s5", "forest"])
 def test_set_state_refuses_a_non_finite_state_and_takes_a_finite_one(scenario):
-    import torch
-
-    from flock_torchrl import FlockingEnv
-
     env = FlockingEnv(scenario, num_envs=2, seed=0)
     env.rollout(3, break_when_any_done=False)
     state = env.get_state()
@@ -510,8 +506,6 @@ def test_set_state_refuses_a_non_finite_state_and_takes_a_finite_one(scenario):
 
 @pytest.mark.parametrize("seed", [-1, 2**64, 1.5, float("nan"), "3", True])
 def test_bad_seeds_are_refused_naming_seed(seed):
-    from flock_torchrl import FlockingEnv
-
     with pytest.raises(ValueError, match=r"^seed must be None or an integer in \[0, 2\*\*64 - 1\], got"):
         FlockingEnv("s1", num_envs=1, seed=seed)
     env = FlockingEnv("s1", num_envs=1, seed=2**64 - 1)  # the largest one works
@@ -520,10 +514,6 @@ def test_bad_seeds_are_refused_naming_seed(seed):
 
 
 def test_cuda_without_cuda_is_one_line_naming_device():
-    import torch
-
-    from flock_torchrl import FlockingEnv
-
     if torch.cuda.is_available():
         pytest.skip("this machine has CUDA")
     with pytest.raises(ValueError, match=r"^device 'cuda': this machine has no CUDA device") as info:
