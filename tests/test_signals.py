@@ -267,9 +267,6 @@ def alive(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
 @pytest.mark.parametrize("signum", [15, 2])
 def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp_path, signum):
-    import signal
-    import time
-
     run = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), *TINY, "experiment.workers=2",
                              "experiment.max_frames=100000", f"hydra.run.dir={run}"], cwd=tmp_path, env=script_env(),
@@ -299,14 +296,12 @@ def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp
 # ---------------------------------------------------------------------------- joblib sweeps stopped or killed
 @pytest.mark.slow
 def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_jobs_do_not_start(tmp_path):
-    import signal
-    import time
-
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     sweep = tmp_path / "sweep"
     proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/launcher=joblib",
                              "hydra.launcher.n_jobs=2", *TINY, "experiment.max_frames=100000",
-                             "experiment.checkpoint_every_frames=64", "seed=0,1,2", f"hydra.sweep.dir={sweep}"],
+                             "experiment.checkpoint_every_frames=64", "experiment.eval_every_frames=64", "seed=0,1,2",
+                             f"hydra.sweep.dir={sweep}"],
                             cwd=tmp_path, env=script_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     deadline = time.time() + 300
@@ -341,9 +336,6 @@ def test_the_job_workers_of_a_killed_joblib_sweep_end_with_it_and_free_their_fol
     """SIGKILL of a joblib sweep's process (the probe's case): its job workers lived on, ran their
     jobs to the end and held their run folders' locks. Now each stops with its checkpoint, at once,
     and the rerun takes the folder."""
-    import signal
-    import time
-
     from filelock import FileLock
 
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")

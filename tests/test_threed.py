@@ -546,7 +546,7 @@ def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3
 
     runs, ckpts = tmp_path / "runs" / "threed", tmp_path / "checkpoints"
     folder = runs / "tiny" / "paper_fit" / "policy3_g"
-    for name in ("seed0__scenario-train3d", "seed1__algo.target_entropy--3.0__scenario-train3d",
+    for name in ("seed0__scenario-train3d", "seed1__scenario-train3d",
                  "seed2", "seed3__algo.lr_actor-0.1__scenario-train3d"):   # the last two are not the collection's
         shutil.copytree(tiny_3d_run, folder / name)
     (ckpts / "paper_fit" / "policy3_g").mkdir(parents=True)
@@ -563,10 +563,11 @@ def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3
     assert "`make ship-threed` (scripts/ship.py only=threed)" in manifest
     assert (ckpts / "paper_fit" / "policy3_g" / "seed0.pt").read_bytes() == b"a 2-D checkpoint, left alone"
     assert sorted(p.name for p in (ckpts / "paper_fit").iterdir()) == ["policy3_g", "threed"]
-    # Both names of one seed: a conflict, one line, exit 2, nothing rewritten.
+    # A collection of two names holding one seed under both: a conflict, one line, exit 2, nothing rewritten.
     shutil.copytree(tiny_3d_run, folder / "seed0__algo.target_entropy--3.0__scenario-train3d")
     before = {p: p.stat().st_mtime_ns for p in dest.rglob("*")}
-    proc = run_script("ship.py", *args, cwd=tmp_path, check=False)
+    two_names = "scenario_collections.threed.names=[scenario-train3d,algo.target_entropy--3.0__scenario-train3d]"
+    proc = run_script("ship.py", *args, two_names, cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "both hold policy3_g seed0" in proc.stderr, proc.stderr
     assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
 
