@@ -310,6 +310,7 @@ def test_policy_runs_on_the_inputs_device():
         assert td["agents", "action"].device.type == torch.device(device).type
 
 
+@pytest.mark.slow
 def test_tuning_walks_the_grid_with_tied_parameters_and_picks_a_grid_point():
     """report/tuning.py (make tune-baselines) in the fast tier: Policy-MA's grid is 3 x 3 points,
     r kept at 1.2 d and r_beta at 1.2 d_beta (docs/baselines.md); a short tuning run scores

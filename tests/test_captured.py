@@ -97,7 +97,8 @@ def test_a_captured_run_equals_the_uncaptured_one(tmp_path):
         torch.testing.assert_close(b["actor"][name], value, rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("extra", [[], ["reset_pool=8"]])  # with a reserve: the hand-out captured too
+# with a reserve: the hand-out captured too
+@pytest.mark.parametrize("extra", [[], pytest.param(["reset_pool=8"], marks=pytest.mark.slow)])
 def test_a_captured_run_resumes_bitwise(tmp_path, extra):
     whole = train(quick_config(1, "policy3_g", "cudagraphs=true", *extra), tmp_path / "whole")
     assert whole.updates > 0
@@ -115,7 +116,7 @@ def test_cudagraphs_is_refused_for_ppo_in_one_line():
 
 
 # s4: sensor noise, drawn before the step and passed in; train3d: the 3-D world's constants
-@pytest.mark.parametrize("scenario", ["train", "s4", "train3d"])
+@pytest.mark.parametrize("scenario", ["train", pytest.param("s4", marks=pytest.mark.slow), "train3d"])
 def test_the_captured_step_and_hand_out_are_given_only_tensors_and_read_nothing(scenario):
     """``capture_step=True`` (what ``cudagraphs=true`` gives the training env): the step and the
     reserve's hand-out wrapped in ``CudaGraphModule`` (a pass-through here). What a graph's

@@ -118,6 +118,7 @@ def test_crash_forensics_of_a_hand_built_crash():
     assert float(out["instinct_uav_speed_last"][0]) == pytest.approx(3 * math.sqrt(2), abs=1e-4)
 
 
+@pytest.mark.slow
 def test_the_wrapped_paper_instinct_flies_the_built_in_one():
     """The control of every wrapper variant: the paper's instinct applied outside the world
     (instinct off, velocity commands) gives the same episodes as the world's own."""
@@ -132,6 +133,7 @@ def test_the_wrapped_paper_instinct_flies_the_built_in_one():
         run_cell(handle, "train", "paper_fit", 5, "nope", n_episodes=1)
 
 
+@pytest.mark.slow
 def test_the_tangential_off_variant_drops_only_eq_28():
     """Policy5-G's instinct has no tangential term: the variant flies its episodes unchanged.
     Policy3-G's has one: dropping it changes the episodes."""

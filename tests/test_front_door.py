@@ -428,6 +428,7 @@ def bad_module(tmp_path):
     return path
 
 
+@pytest.mark.slow
 def test_a_contender_flies_in_one_declared_world_through_both_doors(tmp_path):
     """The same contender, seed and episodes: `evaluate contender=` and `reproduce contenders=`
     give the same numbers, in the world it declares (here: the scenario's own, instinct off)."""

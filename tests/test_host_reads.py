@@ -104,7 +104,8 @@ def test_a_pending_batch_is_a_copy_of_what_the_collector_may_reuse():
     assert finished.values[0][0] == 5.0
 
 
-@pytest.mark.parametrize("members", [1, pytest.param(2, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("members", [1, 2])
 def test_the_training_loop_reads_nothing_per_iteration(members):
     """Collection, the replay buffer, sampling, the update and the episode bookkeeping of a solo
     run and a population read no tensor on the host between logs. Without a reserve of fresh

@@ -226,6 +226,7 @@ def test_no_import_circle():
     assert not circle, "import circle: " + " -> ".join(circle)
 
 
+@pytest.mark.slow
 def test_only_compose_touches_hydra_and_importing_the_package_registers_and_reads_nothing():
     """config/: ``compose.py`` is the one module that imports Hydra (``scenario.py``, what the world
     builds on, imports none); importing the package registers no resolver or schema and reads no

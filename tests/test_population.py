@@ -202,6 +202,7 @@ def test_a_mixed_size_population_resumes_bitwise(tmp_path):
     assert not all(torch.equal(v, a["members"][1]["actor"][k]) for k, v in a["members"][0]["actor"].items())
 
 
+@pytest.mark.slow
 def test_a_population_trains_ships_and_resumes_bitwise(tmp_path):
     """population=2 under the tiny recipe: each member's policy ships as seed<k>.pt; a run stopped
     at its first checkpoint and resumed ends bit-identical to the uninterrupted one."""
@@ -417,6 +418,7 @@ def test_a_populations_scalars_are_logged_per_member_and_as_the_solo_runs_names(
     assert last("perf/frames_per_s") == pytest.approx(2 * last("perf/member_frames_per_s"))
 
 
+@pytest.mark.slow
 def test_scaling_names_the_member_of_a_population_it_flies(population_run, tmp_path):
     from flock_torchrl.config import app_config
     from flock_torchrl.report.scaling import scaling

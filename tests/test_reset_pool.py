@@ -194,7 +194,8 @@ def assert_same(a: list[TensorDict], b: list[TensorDict]) -> None:
             assert same(x[key], y[key]), key
 
 
-@pytest.mark.parametrize("scenario", ["train", "s4"])  # s4: sensor noise drawn from the same generator
+# s4: sensor noise drawn from the same generator
+@pytest.mark.parametrize("scenario", ["train", pytest.param("s4", marks=pytest.mark.slow)])
 def test_same_seed_same_episodes_and_a_restored_state_continues_bit_for_bit(scenario):
     a = rollout(pool_env(scenario, num_envs=4, reset_pool=8, max_steps=3, extras="all"), 12)
     b = rollout(pool_env(scenario, num_envs=4, reset_pool=8, max_steps=3, extras="all"), 12)
@@ -310,6 +311,7 @@ def test_bad_values_are_refused():
         pooled.set_state(state)
 
 
+@pytest.mark.slow
 def test_a_tiny_training_run_with_the_pool_resumes_bit_for_bit(tmp_path):
     from flock_torchrl.policies.checkpoint import load_checkpoint
 
@@ -354,7 +356,8 @@ def test_a_compiled_step_compiles_once_across_worlds_taken_from_the_reserve():
     assert out["next", "done"].all() and env._compiled_whole
 
 
-@pytest.mark.parametrize("extra", ["population=2", "experiment.swarm_sizes=[3,5]"])
+@pytest.mark.parametrize("extra", [pytest.param("population=2", marks=pytest.mark.slow),
+                                   "experiment.swarm_sizes=[3,5]"])
 def test_population_and_mixed_size_runs_take_the_pool(tmp_path, extra):
     from flock_torchrl.policies.checkpoint import load_checkpoint
 

@@ -85,6 +85,7 @@ def test_a_policy_flies_with_its_own_camera_slots_and_older_checkpoints_with_thr
     assert env.cfg.n_cam == 3 and env.reset()["agents", "observation"].shape[-1] == 17
 
 
+@pytest.mark.slow
 def test_every_conflict_is_found_before_anything_is_shipped(tmp_path):
     """A solo run and a population member both hold policy3_g seed1 (and, in the mixed
     collection, seed0 twice): one line listing both conflicts, exit 2, and nothing written."""

@@ -260,6 +260,7 @@ def test_reproduce_writes_the_comparison_and_checks_its_inputs_first(tmp_path):
     assert proc.returncode == 2 and proc.stderr.startswith("error: compare_tolerance.speedy:") and not out.exists()
 
 
+@pytest.mark.slow
 def test_scaling_table_flies_a_policy_at_each_size(tmp_path):
     """report/scaling.py (make scaling) in the fast tier: one row per policy and size, the spawn
     radius by the reading's rule (literal: 3 m up to N = 9, docs/specification.md section 9),

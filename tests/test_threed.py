@@ -127,7 +127,8 @@ def test_the_special_case_holds_for_the_rule_based_baselines_velocity_commands()
         assert torch.equal(a["next", "agents", "position"], b["next", "agents", "position"][..., :2])
 
 
-@pytest.mark.parametrize("scenario, reading", [("train", "paper_fit"), ("s4", "literal")])
+@pytest.mark.parametrize("scenario, reading", [pytest.param("train", "paper_fit", marks=pytest.mark.slow),
+                                               ("s4", "literal")])
 def test_the_special_case_holds_compiled(scenario, reading):
     flat, lifted = _pair(scenario, reading, "policy3_g", num_envs=4, compile_step=True)
     _assert_special_case(flat, lifted, steps=6)
@@ -331,6 +332,7 @@ def test_check_env_specs_in_space(scenario, overrides):
     assert td["agents", "scan"].shape[-1] == 110  # three rings of 36 and the vertical pair
 
 
+@pytest.mark.slow
 def test_space_spawns_in_altitude_and_keeps_the_limits():
     env = FlockingEnv("train3d", num_envs=64, seed=0, extras="physics")
     td = env.reset()
@@ -346,6 +348,7 @@ def test_space_spawns_in_altitude_and_keeps_the_limits():
         assert float(td["next", "agents", "position"][..., 2].max()) <= 30.0
 
 
+@pytest.mark.slow
 def test_wall3d_can_only_be_passed_over_or_under():
     """The box spans the area: flying level into it crashes; the starts face it from the north."""
     env = FlockingEnv("wall3d", num_envs=32, seed=0, extras="physics")
@@ -459,6 +462,7 @@ def test_sac_target_entropy_is_minus_the_action_dimension(overrides, expected):
     assert str(sac_target_entropy(2)) == "-2.0"
 
 
+@pytest.mark.slow
 def test_policy3_g_trains_in_space_through_the_train_app(tmp_path):
     from helpers import run_script
 
@@ -517,6 +521,7 @@ def test_the_3d_table_pools_seeds_by_hand(tmp_path):
     assert "| wall3d | Policy3-G | 2 | 20 | 30.0 % ± 14.1 |" in text and "1.500 ± 0.100 e" in text
 
 
+@pytest.mark.slow
 def test_episode_gifs_of_a_3d_scenario(tmp_path):
     from flock_torchrl.report.threed import episode_gifs
 
@@ -572,6 +577,7 @@ def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3
     assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
 
 
+@pytest.mark.slow
 def test_ship_refuses_an_unknown_collection(tmp_path):
     from helpers import run_script
 

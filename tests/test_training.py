@@ -16,7 +16,8 @@ def ckpt_reading(result) -> str:
     return yaml.safe_load((result.run_dir / "config.yaml").read_text())["scenario"]["reading"]
 
 
-@pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyd_g", "ddpg"), ("policyp_g", "ppo")])
+@pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyp_g", "ppo"),
+                                          pytest.param("policyd_g", "ddpg", marks=pytest.mark.slow)])
 def test_tiny_run_of_each_learner(tmp_path, policy, algo):
     result = train(tiny_pipeline(policy), tmp_path / "run")
     ckpt = load_checkpoint(result.checkpoint)
@@ -47,7 +48,7 @@ def test_tiny_run_of_each_learner(tmp_path, policy, algo):
         assert td["agents", "action"].abs().max() <= 1
 
 
-@pytest.mark.parametrize("cudagraphs", [False, True], ids=["eager", "captured"])
+@pytest.mark.parametrize("cudagraphs", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["eager", "captured"])
 def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypatch, cudagraphs):
     """The captured update keeps its finite-loss flags on the device and checks them before every
     checkpoint: a diverged run stops the same way and keeps its last good checkpoint."""
@@ -73,6 +74,7 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypa
         assert torch.isfinite(value).all()
 
 
+@pytest.mark.slow
 def test_wandb_logger_works_offline(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_MODE", "offline")
     train(tiny_pipeline("policy3_g", "experiment.max_frames=48", logger="wandb"), tmp_path / "wb")
