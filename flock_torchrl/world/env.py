@@ -16,13 +16,14 @@ from ..config.scenario import ScenarioConfig
 from .geometry import Obstacles
 from .keys import EXTRAS, env_output, env_specs, extras_of
 from .metrics import new_accumulator, summary_values
-from .reserve import Reserve
+from .reserve import Reserve, in_layout
 from .sensors import observation_size, state_size
 from .spawn import check_spawn_feasible, sample_layout, static_obstacles
-from .state import (ACTION, STATE_KEYS, check_counts, check_seed, checked_action, checked_reset_mask, checked_worlds,
-                    empty_state, placed_state, torch_device, world_index)
+from .state import (ACTION, STATE_KEYS, check_counts, check_seed, checked_action, checked_reset_mask,
+                    empty_state, placed_state, restored_worlds, spawned_state, torch_device, world_index)
 from .step import (STEP_COMPILE_OPTIONS, WHOLE_WARMUP, noise_draws, sense, step_function, transition,
                    whole_step_guards, world_obstacles)
+
 
 class FlockingEnv(EnvBase):
     """Multi-UAV flocking (Bai et al. 2024) as a batched, torch-native TorchRL environment.
@@ -182,17 +183,10 @@ class FlockingEnv(EnvBase):
         A world's episode depends on its index only through the generator it draws from (a
         population's member), so the reserve (``reset_pool``) draws with an index repeating a
         member's first world as often as it needs worlds."""
-        layout = self._draw_layout(index)
-        count = self.num_envs if index is None else int(index.numel())
-        dev = self.device
-        state = empty_state(self.cfg, count, dev)
-        state.update(position=layout.position, heading=layout.heading, goal=layout.goal,
-                     moving_position=layout.moving_position, moving_velocity=layout.moving_velocity,
-                     drawn_circles=layout.drawn_circles, drawn_rectangles=layout.drawn_rectangles,
-                     drawn_spheres=layout.drawn_spheres)
-        sensed = sense(state, self._static, self.cfg, self._draw_noise(index))
-        return TensorDict({**state, "episode": new_accumulator(count, dev), "sensed": sensed},
-                          batch_size=[count], device=dev)
+        state = spawned_state(self.cfg, self._draw_layout(index), self.device)
+        count, sensed = state["position"].shape[0], sense(state, self._static, self.cfg, self._draw_noise(index))
+        return TensorDict({**state, "episode": new_accumulator(count, self.device), "sensed": sensed},
+                          batch_size=[count], device=self.device)
 
     def _output(self, summary: Mapping[str, torch.Tensor] | None = None, reward: torch.Tensor | None = None
                 ) -> TensorDict:
@@ -279,14 +273,7 @@ class FlockingEnv(EnvBase):
         done = done.reshape(self.reserve.groups, self.reserve.per_group).to(self.device)
         old = self.world.to_dict()
         world = self.reserve.hand_out(old, done)
-
-        def restrided(old: dict, new: dict) -> dict:
-            # The world's own layout (the compiled step reads back what it wrote, as it wrote it).
-            return {key: restrided(value, new[key]) if isinstance(value, dict)
-                    else new[key] if new[key].stride() == value.stride() else torch.empty_like(value).copy_(new[key])
-                    for key, value in old.items()}
-
-        self.world = TensorDict._new_unsafe(restrided(old, world), batch_size=self.batch_size, device=self.device)
+        self.world = TensorDict._new_unsafe(in_layout(old, world), batch_size=self.batch_size, device=self.device)
         mask = done.reshape(-1)
         self._restored = False
         # Every reset world is fresh: its episode summary is a fresh accumulator's, made once.
@@ -346,19 +333,8 @@ class FlockingEnv(EnvBase):
 
         Every tensor must have the shape and dtype this env keeps (no silent casts: a float64
         state would not continue bit for bit); anything else is a ``ValueError`` naming the key."""
-        world = state["world"] if isinstance(state, Mapping) and "world" in state else None
-        if not isinstance(world, (Mapping, TensorDictBase)):
-            raise ValueError("env state: expected a mapping with a 'world' entry (what get_state() returns)")
-        world = checked_worlds(self.cfg, world, self.num_envs, self._empty_world(sensed=True), "env state",
-                               self.device, finite=True)
-        saved = state.get("reset_pool")
-        if self.reserve is None and saved is not None:
-            raise ValueError("env state: it carries a reserve of fresh worlds (saved with reset_pool > 0); this "
-                             "env has reset_pool=0")
-        if self.reserve is not None:  # checked whole before anything changes
-            self.reserve.load_state_dict(saved, lambda stored, count: checked_worlds(
-                self.cfg, stored, count, self.reserve.worlds, f"env state's reset_pool (reset_pool={self.reset_pool})",
-                self.device))
+        world = restored_worlds(self.cfg, state, self.num_envs, self._empty_world(sensed=True), self.reserve,
+                                self.reset_pool, self.device)
         self.world = world
         self._generator.set_state(state["generator"])
         self._sensed_once = True

@@ -37,6 +37,14 @@ def take_from_reserve(world: dict, reserve: dict, pointer: torch.Tensor, done: t
     return put(world, reserve), pointer + taken[:, -1]
 
 
+def in_layout(old: dict, new: dict) -> dict:
+    """``new``'s worlds in ``old``'s memory layout, entry by entry (a copy where a stride differs):
+    the compiled step reads back what it wrote, as it wrote it."""
+    return {key: in_layout(value, new[key]) if isinstance(value, dict)
+            else new[key] if new[key].stride() == value.stride() else torch.empty_like(value).copy_(new[key])
+            for key, value in old.items()}
+
+
 class Reserve:
     """``pool`` fresh worlds for each of ``groups`` groups of ``per_group`` worlds (a population's
     members; one group otherwise): a group's done worlds take from its own part, in world order.
@@ -132,4 +140,4 @@ class Reserve:
         self.worlds, self.pointer, self.calls = stored, pointer.to(self.worlds.device).clone(), calls
 
 
-__all__ = ["Reserve", "take_from_reserve"]
+__all__ = ["Reserve", "in_layout", "take_from_reserve"]

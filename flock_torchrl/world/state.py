@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 
 from ..config.scenario import ScenarioConfig
 
@@ -177,6 +177,36 @@ def checked_worlds(cfg: ScenarioConfig, saved: Any, count: int, reference: Any, 
     return worlds
 
 
+def restored_worlds(cfg: ScenarioConfig, state: Any, count: int, reference: Any, reserve: Any, reset_pool: int,
+                    device: torch.device) -> TensorDict:
+    """``FlockingEnv.set_state``'s check: the ``count`` finite worlds of ``state`` (what ``get_state()``
+    returns), and its reserve of fresh worlds loaded into ``reserve`` (a :class:`~.reserve.Reserve`,
+    or ``None`` for ``reset_pool=0``), every part checked before anything changes; anything else is
+    a ``ValueError`` naming the key."""
+    world = state["world"] if isinstance(state, Mapping) and "world" in state else None
+    if not isinstance(world, (Mapping, TensorDictBase)):
+        raise ValueError("env state: expected a mapping with a 'world' entry (what get_state() returns)")
+    world = checked_worlds(cfg, world, count, reference, "env state", device, finite=True)
+    saved = state.get("reset_pool")
+    if reserve is None and saved is not None:
+        raise ValueError("env state: it carries a reserve of fresh worlds (saved with reset_pool > 0); this "
+                         "env has reset_pool=0")
+    if reserve is not None:
+        reserve.load_state_dict(saved, lambda stored, n: checked_worlds(
+            cfg, stored, n, reserve.worlds, f"env state's reset_pool (reset_pool={reset_pool})", device))
+    return world
+
+
+def spawned_state(cfg: ScenarioConfig, layout: Any, device: torch.device) -> dict[str, torch.Tensor]:
+    """New episodes' state: a drawn ``layout`` (:func:`~.spawn.sample_layout`: spawns, goals, moving
+    and drawn obstacles) at rest over an empty state."""
+    state = empty_state(cfg, layout.position.shape[0], device)
+    state.update({key: getattr(layout, key) for key in ("position", "heading", "goal", "moving_position",
+                                                       "moving_velocity", "drawn_circles", "drawn_rectangles",
+                                                       "drawn_spheres")})
+    return state
+
+
 def placed_state(cfg: ScenarioConfig, kept: Mapping[str, torch.Tensor], given: Mapping[str, Any], batch: int,
                  device: torch.device) -> dict[str, torch.Tensor]:
     """The physical state ``FlockingEnv.place`` starts from: ``given`` (the arguments not ``None``,
@@ -267,6 +297,7 @@ def torch_device(device: Any) -> torch.device:
     return dev
 
 
-__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_counts", "check_like", "check_seed", "check_state", "checked_action",
-           "checked_reset_mask", "checked_worlds", "empty_state", "fill_absent", "placed_state", "state_shapes",
-           "torch_device", "world_index", "world_state"]
+__all__ = ["ACTION", "STATE_KEYS", "StateField", "WORLD_STATE", "check_counts", "check_like", "check_seed",
+           "check_state", "checked_action", "checked_reset_mask", "checked_worlds", "empty_state", "fill_absent",
+           "placed_state", "restored_worlds", "spawned_state", "state_shapes", "torch_device", "world_index",
+           "world_state"]
