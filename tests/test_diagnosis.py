@@ -11,8 +11,8 @@ import torch
 from helpers import first_fast, run_script
 
 from flock_torchrl import scenario_config
-from flock_torchrl.report.diagnosis import (along, binomial_ci, crash_forensics, crowd_instinct, outward_normal,
-                                            run_cell)
+from flock_torchrl.report.diagnosis import along, binomial_ci, crash_forensics, outward_normal, run_cell
+from flock_torchrl.report.variants import crowd_instinct
 from flock_torchrl.world.geometry import Obstacles
 from flock_torchrl.world.sensors import Neighbours, laser_scan
 
@@ -147,7 +147,7 @@ def test_the_tangential_off_variant_drops_only_eq_28():
 
 
 def test_the_instinct_wrapper_refuses_a_world_that_applies_its_own():
-    from flock_torchrl.report.diagnosis import InstinctWrapper
+    from flock_torchrl.report.variants import InstinctWrapper
 
     cfg = scenario_config("train", reading="paper_fit", policy="policy3_g")  # instinct on, policy actions
     with pytest.raises(ValueError, match="instinct=False"):
