@@ -51,9 +51,10 @@ register()
 
 def _errors() -> tuple[type[BaseException], ...]:
     from .policies.checkpoint import CheckpointError
+    from .run.publication import PublishError
     from .world.spawn import SpawnError
 
-    return ConfigError, AppError, CheckpointError, SpawnError
+    return ConfigError, AppError, CheckpointError, SpawnError, PublishError
 
 
 def fail(message: Any) -> None:

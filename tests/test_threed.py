@@ -542,7 +542,7 @@ def tiny_3d_run(tmp_path_factory):
 
 
 @pytest.mark.slow  # a tiny 3-D training and two runs of scripts/ship.py (~10 s)
-def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3d_run, tmp_path):
+def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3d_run, tmp_path, monkeypatch):
     import shutil
 
     from helpers import run_script
@@ -574,6 +574,15 @@ def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3
     two_names = "scenario_collections.threed.names=[scenario-train3d,algo.target_entropy--3.0__scenario-train3d]"
     proc = run_script("ship.py", *args, two_names, cwd=tmp_path, check=False)
     assert proc.returncode == 2 and "both hold policy3_g seed0" in proc.stderr, proc.stderr
+    assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
+    # While another publication holds the folder (a make publish-... under way): one line, exit 2, nothing rewritten.
+    from flock_torchrl.run.publication import Publication
+
+    monkeypatch.chdir(tmp_path)   # the publication's root is the ship's: its working directory
+    with Publication("a publication under way", [ckpts / "paper_fit"], log=lambda line: None):
+        proc = run_script("ship.py", *args, cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("error: another publication is under way"), proc.stderr
     assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
 
 
