@@ -415,3 +415,23 @@ def test_the_whole_compiled_step_and_reset_matches_its_eager_twin():
         torch.testing.assert_close(root_c, root, rtol=1e-4, atol=1e-4)
     assert torch.equal(eager._generator.get_state(), compiled._generator.get_state())
     assert sum(int(d.sum()) for _, _, d in expected) >= 9  # worlds were reset, from the reserve
+
+
+def test_a_masked_reset_with_a_reserve_warns_once_that_the_reserve_is_not_used_there():
+    """A TransformedEnv resets its done worlds through "_reset" masks, which draw their worlds there
+    and then: an env with a reserve says so once (a warning), and the reserve's pointer stays."""
+    import warnings
+
+    from torchrl.envs import StepCounter, TransformedEnv
+
+    env = pool_env(num_envs=4, reset_pool=8, max_steps=3)
+    wrapped = TransformedEnv(env, StepCounter())
+    td = wrapped.reset()
+    pointer = env.reserve.pointer.clone()
+    mask = torch.tensor([[True], [False], [True], [False]])
+    with pytest.warns(UserWarning, match=r"reset_pool>0.*draws its new worlds there and then.*TransformedEnv"):
+        wrapped.reset(td.clone().set("_reset", mask))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # once: the next masked reset is silent
+        wrapped.reset(td.clone().set("_reset", mask))
+    assert torch.equal(env.reserve.pointer, pointer)

@@ -74,6 +74,34 @@ def test_nan_loss_stops_the_run_and_keeps_the_last_checkpoint(tmp_path, monkeypa
         assert torch.isfinite(value).all()
 
 
+def test_each_logging_event_is_one_row_of_every_scalar(tmp_path, monkeypatch):
+    """The trainer hands the logger one dict per logging event (TorchRL's Logger.log_metrics): a
+    wandb run gets one history row per event, not one per scalar; the training rows carry the
+    losses, the episode length, the gradient norms, the learning rates and the loop's speed."""
+    from torchrl.record.loggers import CSVLogger
+
+    rows, scalars = [], []
+    log_metrics, log_scalar = CSVLogger.log_metrics, CSVLogger.log_scalar
+
+    def metrics(self, values, step=None, **kwargs):
+        rows.append((set(values), step))
+        return log_metrics(self, values, step, **kwargs)
+
+    def scalar(self, name, value, step=None):
+        scalars.append(name)
+        return log_scalar(self, name, value, step)
+
+    monkeypatch.setattr(CSVLogger, "log_metrics", metrics)
+    monkeypatch.setattr(CSVLogger, "log_scalar", scalar)
+    train(tiny_pipeline("policy3_g", "experiment.max_frames=96", "scenario.max_steps=6", logger="csv"), tmp_path / "run")
+    training = [keys for keys, _ in rows if "train/loss_actor" in keys]
+    assert training, rows
+    wanted = {"train/loss_qvalue", "train/alpha", "train/episode_length", "train/grad_norm_actor",
+              "train/grad_norm_critic", "train/lr_actor", "perf/frames_per_s"}
+    assert all(wanted <= keys for keys in training), [wanted - keys for keys in training]
+    assert len(scalars) == sum(len(keys) for keys, _ in rows)   # every scalar came through a row
+
+
 @pytest.mark.slow
 def test_wandb_logger_works_offline(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_MODE", "offline")
