@@ -85,6 +85,7 @@ def test_a_captured_update_defers_the_finite_check_to_check():
         pop.check()
 
 
+@pytest.mark.slow   # the fast tier: the captured update against the eager one, and tests/test_solo_reference.py
 def test_a_captured_run_equals_the_uncaptured_one(tmp_path):
     """The trainer with ``cudagraphs=true``: the solo run as the uncaptured one (up to float
     round-off; on a CPU the same arithmetic)."""
@@ -98,7 +99,8 @@ def test_a_captured_run_equals_the_uncaptured_one(tmp_path):
 
 
 # with a reserve: the hand-out captured too
-@pytest.mark.parametrize("extra", [[], pytest.param(["reset_pool=8"], marks=pytest.mark.slow)])
+@pytest.mark.slow   # as tests/test_solo_reference.py's captured run, whole and resumed (also the full tier)
+@pytest.mark.parametrize("extra", [[], ["reset_pool=8"]])
 def test_a_captured_run_resumes_bitwise(tmp_path, extra):
     whole = train(quick_config(1, "policy3_g", "cudagraphs=true", *extra), tmp_path / "whole")
     assert whole.updates > 0

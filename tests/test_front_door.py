@@ -487,7 +487,8 @@ def test_evaluate_names_the_contender_in_its_folder():
 
 
 # ---------------------------------------------------------------------------- a bad contender is refused early
-@pytest.mark.parametrize("name", sorted(EXPECT))
+@pytest.mark.parametrize("name", [n if n in ("raises", "nan", "shape") else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in sorted(EXPECT)])   # a raise, a bad value and a bad shape in the fast tier
 def test_a_bad_contender_is_one_line_naming_it_before_any_row(bad_module, tmp_path, name):
     from flock_torchrl.config import ConfigError, app_config
     from flock_torchrl.report.reproduce import reproduce

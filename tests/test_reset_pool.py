@@ -98,7 +98,8 @@ def test_between_refills_a_step_with_done_worlds_reads_nothing_on_the_host():
     assert reads.total >= 2
 
 
-@pytest.mark.parametrize("scenario", ["train", "s5", "forest", "train3d"])
+@pytest.mark.parametrize("scenario", ["train", pytest.param("s5", marks=pytest.mark.slow), "forest",
+                                      pytest.param("train3d", marks=pytest.mark.slow)])
 def test_done_worlds_take_the_next_reserve_worlds_and_the_rest_stay(scenario):
     env = pool_env(scenario, num_envs=6, reset_pool=12, extras="all")
     plain = pool_env(scenario, num_envs=6, reset_pool=0, extras="all")

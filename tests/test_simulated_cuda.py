@@ -84,7 +84,8 @@ def _steps(env: FlockingEnv, actions: torch.Tensor, device: str):
     return torch.stack(outs)
 
 
-@pytest.mark.parametrize("scenario", ["s4", pytest.param("train3d", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["s4", "train3d"])
 def test_the_env_steps_on_the_simulated_device_as_on_the_cpu_bitwise(scenario):
     """The GPU path of the env (the captured static-shape step, the reserve's hand-out, every extra
     key) keeps every tensor on the device, and gives the CPU's transitions."""

@@ -16,7 +16,9 @@ def ckpt_reading(result) -> str:
     return yaml.safe_load((result.run_dir / "config.yaml").read_text())["scenario"]["reading"]
 
 
-@pytest.mark.parametrize("policy, algo", [("policy3_g", "sac"), ("policyp_g", "ppo"),
+# SAC's tiny run is also tests/test_solo_reference.py's (fast tier, bit for bit); DDPG's there in the full tier
+@pytest.mark.parametrize("policy, algo", [("policyp_g", "ppo"),
+                                          pytest.param("policy3_g", "sac", marks=pytest.mark.slow),
                                           pytest.param("policyd_g", "ddpg", marks=pytest.mark.slow)])
 def test_tiny_run_of_each_learner(tmp_path, policy, algo):
     result = train(tiny_pipeline(policy), tmp_path / "run")
@@ -93,7 +95,8 @@ def test_each_logging_event_is_one_row_of_every_scalar(tmp_path, monkeypatch):
 
     monkeypatch.setattr(CSVLogger, "log_metrics", metrics)
     monkeypatch.setattr(CSVLogger, "log_scalar", scalar)
-    train(tiny_pipeline("policy3_g", "experiment.max_frames=96", "scenario.max_steps=6", logger="csv"), tmp_path / "run")
+    train(tiny_pipeline("policy3_g", "experiment.max_frames=96", "scenario.max_steps=6", logger="csv"),
+          tmp_path / "run")
     training = [keys for keys, _ in rows if "train/loss_actor" in keys]
     assert training, rows
     wanted = {"train/loss_qvalue", "train/alpha", "train/episode_length", "train/grad_norm_actor",
