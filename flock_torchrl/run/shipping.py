@@ -141,7 +141,7 @@ def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, name
     if conflicts:
         raise CheckpointError(refusal(conflicts))
     return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log,
-                           made_by=f"`make ship-{dest.name}` (scripts/ship.py only={dest.name})", publication=None)
+                           made_by=f"`make ship-threed` (scripts/ship.py only={dest.name})", publication=None)
 
 
 def refusal(conflicts: list[str]) -> str:
