@@ -113,6 +113,28 @@ def test_standing_pools_the_scaling_seeds_beside_olfati_saber(tmp_path):
     assert (cell["base"], cell["base_low"], cell["base_high"]) == (0.72, 0.65, 0.78)
 
 
+
+def test_the_standing_row_judges_the_paper_camera_twin_cell_by_cell(tmp_path):
+    """By hand (500 episodes a cell, Wilson intervals): the twin's 0.99 [0.977, 0.996] against
+    Policy-MA's 0.80 [0.76, 0.84] is above beyond both intervals; 0.70 [0.658, 0.739] against 0.72
+    [0.68, 0.76] is below with the intervals overlapping (met); 0.40 [0.357, 0.444] against the same
+    is below beyond both (not met). Two scenarios of those three cells: 4 of 6 met, 2 above."""
+    from flock_torchrl.report.standing import scaling_row
+
+    head = "policy,n_uavs,success_rate,safe_success_rate,safe_success_rate_low,safe_success_rate_high,n_episodes"
+    rows = {5: (0.99, 0.80, 0.76, 0.84), 20: (0.70, 0.72, 0.68, 0.76), 50: (0.40, 0.72, 0.68, 0.76)}
+    lines = [head]
+    for n, (twin, base, low, high) in rows.items():
+        lines += [f'"Policy3-G-crowd-ramp-allround-radial [mixed_cluttered, seed 0]",{n},1.0,0.9,0,1,500',
+                  f'"Policy3-G-crowd-ramp-radial [mixed_cluttered, seed 0]",{n},1.0,{twin},0,1,500',
+                  f"Policy-MA,{n},0.9,{base},{low},{high},500"]
+    (tmp_path / "paper_fit").mkdir()
+    for name in ("scaling.csv", "scaling_forest.csv"):
+        (tmp_path / "paper_fit" / name).write_text("\n".join(lines) + "\n")
+    row = scaling_row(tmp_path)
+    assert "its twin with the paper's 0.5 pi camera (Policy3-G-crowd-ramp-radial) meets it in 4 of 6 cells " \
+           "(2 above beyond both intervals)" in row, row
+
 def test_readme_and_docs_links_exist():
     for doc in (README, *(ROOT / "docs").glob("*.md")):
         for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", doc.read_text()):

@@ -181,11 +181,17 @@ def scaling_row(results: Path) -> str:
         judged += f", below it within the 95 % intervals in {tied}"
     if below:
         judged += f", below it beyond the intervals in {below}"
+    twin = [c for path in scenarios.values() if _has_rows(path, PAPER_CAMERA_POLICY)
+            for c in scaling_cells(path, PAPER_CAMERA_POLICY)]
+    verdicts = [_verdict(c) for c in twin]
+    camera = (f"; its twin with the paper's 0.5 pi camera ({PAPER_CAMERA_POLICY}) meets it in "
+              f"{sum(v != 'below, beyond both intervals' for v in verdicts)} of {len(twin)} cells "
+              f"({verdicts.count('above, beyond both intervals')} above beyond both intervals)") if twin else ""
     return (f"| beyond the paper: flocks of {sizes[0]}-{sizes[-1]} UAVs (`paper_fit`) | your scenarios and "
             f"controllers through Hydra; {SCALING_POLICY} (`experiment=mixed_cluttered`, {_count(seeds)} seeds pooled, "
             f"{_count(episodes)} episodes per seed and cell; its actor sees all round): success "
             f"{_range([c['success'] for c in every])} at every size on both scenarios; safe success {judged}; "
-            f"at {sizes[-1]} UAVs {at_largest} (docs/scaling.md) |")
+            f"at {sizes[-1]} UAVs {at_largest}{camera} (docs/scaling.md) |")
 
 
 def _verdict(c: dict) -> str:
