@@ -166,7 +166,8 @@ def test_quoted_blocks_equal_the_files_that_write_them():
                                                             "results/paper_fit/claims_overview.md",
                                                             "results/paper_fit/table3_3d_brief.md"]
     assert [p for p, _, _ in blocks((ROOT / "docs" / "threed.md").read_text())] == [
-        "results/paper_fit/table3_3d.md", "results/paper_fit/scaling_train3d.md"]
+        "results/paper_fit/table3_3d.md", "results/paper_fit/scaling3d_pooled.md",
+        "results/paper_fit/scaling_train3d.md", "results/paper_fit/scaling_forest3d.md"]
     assert [p for p, _, _ in blocks((ROOT / "docs" / "throughput.md").read_text())] == ["results/benchmark.md"]
 
 

@@ -266,13 +266,13 @@ def test_the_3d_figures_show_the_seed_of_median_success():
     text = figures_markdown(rows, {"wall3d": representative(rows, "Policy3-G", "wall3d")}, "Policy-OP", "wall3d")
     assert "| wall3d | 4 | 86.0 % | 0: 19.2 %, 1: 99.0 %, 2: 81.0 %, 3: 95.0 %, 4: 86.0 % |" in text
     assert "median" in text and "`threed_wall3d_frames.png`" in text
-    # On the published table, the rule does not pick seed 0, the weakest seed on wall3d.
+    # On the published table, the seed shown on wall3d is one of median success there.
     with (ROOT / "results" / "paper_fit" / "table3_3d_seeds.csv").open() as handle:
         published = [dict(r, seed=int(re.search(r"seed(\d+)\.pt", r["checkpoint"]).group(1)))
                      for r in csv.DictReader(handle) if r["policy"] == "Policy3-G"]
-    wall = sorted((float(r["success_rate"]), r["seed"]) for r in published if r["scenario"] == "wall3d")
+    wall = sorted(float(r["success_rate"]) for r in published if r["scenario"] == "wall3d")
     chosen = representative(published, "Policy3-G", "wall3d")
-    assert wall[0][1] == 0 and chosen["seed"] == wall[len(wall) // 2][1] != 0
+    assert float(chosen["success_rate"]) == wall[(len(wall) - 1) // 2]
 
 
 # ---------------------------------------------------------------------------- the entry points answer as the apps do

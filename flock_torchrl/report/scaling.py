@@ -39,7 +39,8 @@ def training_of(handle) -> tuple[str, str]:
         return "—", "—"
     meta, experiment = payload["meta"], (payload.get("config") or {}).get("experiment", {})
     sizes = meta.get("trained_sizes") or experiment.get("swarm_sizes") or [meta["n_agents"]]
-    return str(meta.get("experiment", "—")), "+".join(str(n) for n in sizes)
+    # One entry per training world kind and size (train_mix repeats each size): the sizes, once each.
+    return str(meta.get("experiment", "—")), "+".join(str(n) for n in dict.fromkeys(sizes))
 
 
 def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], None] = print) -> list[dict]:
