@@ -19,7 +19,7 @@ from flock_torchrl.policies.baselines.sensing import nearest_hits, neighbour_vie
 from flock_torchrl.policies.registry import policy_config_of
 from flock_torchrl.run.rollout import evaluate
 from flock_torchrl.world.geometry import Obstacles
-from flock_torchrl.world.sensors import laser_scan
+from flock_torchrl.world.laser import laser_scan
 
 SCENARIOS = ("train", "s1", "s2", "s3", "s4", "s5")
 BASELINES = ("policy_ma", "policy_op")

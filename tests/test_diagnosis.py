@@ -14,7 +14,8 @@ from flock_torchrl import scenario_config
 from flock_torchrl.report.diagnosis import along, binomial_ci, crash_forensics, outward_normal, run_cell
 from flock_torchrl.report.variants import crowd_instinct
 from flock_torchrl.world.geometry import Obstacles
-from flock_torchrl.world.sensors import Neighbours, laser_scan
+from flock_torchrl.world.laser import laser_scan
+from flock_torchrl.world.sensors import Neighbours
 
 
 def test_binomial_interval_is_clopper_pearson():

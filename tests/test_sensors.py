@@ -6,9 +6,10 @@ import pytest
 import torch
 
 from flock_torchrl.world.geometry import Obstacles
+from flock_torchrl.world.laser import beam_offsets, laser_scan, scan_observation, shortest_beams
 from flock_torchrl.world.sensors import (
-    Neighbours, add_sensor_noise, beam_offsets, camera_observation, goal_observation, laser_scan,
-    observe_neighbours, scan_observation, shortest_beams, swarm_centre_state, visibility,
+    Neighbours, add_sensor_noise, camera_observation, goal_observation, observe_neighbours, swarm_centre_state,
+    visibility,
 )
 
 PI = math.pi
@@ -382,7 +383,7 @@ def test_actor_camera_all_round_by_hand(make_env, place):
 
 # ---------------------------------------------------------------- the compiled step's layout
 def test_smallest_along_the_worlds_innermost_layout_takes_what_the_last_dimension_takes():
-    from flock_torchrl.world.sensors import pick, smallest
+    from flock_torchrl.world.laser import pick, smallest
 
     # By hand: beams 30 (1 m), then 2 and 5 (3 m each: the lower index first), as along the last dimension.
     beams = torch.full((1, 1, 36), 10.0)
@@ -405,7 +406,7 @@ def test_smallest_along_the_worlds_innermost_layout_takes_what_the_last_dimensio
 
 def test_laser_of_the_compiled_step_casts_what_eager_casting_casts():
     from flock_torchrl.world.geometry import cast_rays_along, cast_rays_worlds_last
-    from flock_torchrl.world.sensors import beam_directions, worlds_last
+    from flock_torchrl.world.laser import beam_directions, worlds_last
 
     # 64 worlds of 5 UAVs among 3 circles and 2 rectangles each, some UAVs inside an obstacle,
     # some on a rectangle's edge (integer coordinates), some beams grazing.

@@ -282,8 +282,8 @@ def test_the_tapered_tangential_term_fades_on_the_line_of_the_push():
 
 def test_the_vertical_beam_pair_reads_the_clearance_above_and_below():
     from flock_torchrl.world.instinct import instinct_command
-    from flock_torchrl.world.sensors import near_neighbours, scan_observation, shortest_beams
-    from flock_torchrl.world.sensors import laser_scan
+    from flock_torchrl.world.laser import laser_scan, scan_observation, shortest_beams
+    from flock_torchrl.world.sensors import near_neighbours
 
     # wall3d's wall (y 38-42 m, z 4-20 m); one UAV 2 m under it at (40, 40, 2), level, heading +x.
     wall = Obstacles(_one(torch.zeros(0, 5)), _one(torch.tensor([[40.0, 40.0, 2000.0, 4.0, 4.0, 20.0]])),

@@ -35,7 +35,8 @@ from ..policies.registry import PolicyHandle
 from ..run.rollout import policy_env
 from ..world.dynamics import action_to_command, clip_command
 from ..world.geometry import Obstacles, nearest_obstacle_distance
-from ..world.sensors import beam_return_offset, near_neighbours
+from ..world.laser import beam_return_offset
+from ..world.sensors import near_neighbours
 from ..world.step import obstacles_of
 from .variants import ACTION, VARIANTS, AllRoundCamera, InstinctWrapper, crowd_instinct
 

@@ -13,7 +13,8 @@ from tensordict import TensorDict
 from ..config import ScenarioConfig
 from ..world.dynamics import action_to_command, clip_command
 from ..world.instinct import hold_in_crowd, instinct_parts
-from ..world.sensors import Neighbours, near_neighbours, smallest
+from ..world.laser import smallest
+from ..world.sensors import Neighbours, near_neighbours
 
 OBS, ACTION = ("agents", "observation"), ("agents", "action")
 

@@ -14,8 +14,7 @@ import torch
 
 from .geometry import circular_mean, constant, length, relative_angle, stored, wrap
 # The laser's half of sensing lives in .laser; its names are sensing's too.
-from .laser import (beam_azimuths, beam_directions, beam_offsets, beam_return_offset, beam_unit_table,  # noqa: F401
-                    laser_scan, pick, ring_tables, scan_observation, shortest_beams, smallest, worlds_last)
+from .laser import pick, smallest, worlds_last
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
@@ -454,11 +453,7 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
     return beams, noisy
 
 
-__all__ = [
-    "CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "SCAN_SLOT", "SIZES_3D", "observation_size", "state_size",
-    "elevation_of", "measured", "off_axis", "piece_sizes", "planar_entries", "ring_tables",
-    "NearPairs", "Neighbours", "add_sensor_noise", "near_neighbours", "beam_offsets", "beam_return_offset", "camera_observation",
-    "beam_azimuths", "beam_directions", "beam_unit_table", "goal_observation", "goal_polar", "measure_pairs", "laser_scan", "observe_neighbours", "scan_observation", "sensor_normals",
-    "pick", "shortest_beams", "smallest", "worlds_last",
-    "swarm_centre_state", "visibility",
-]
+__all__ = ["CAMERA_SLOT", "CENTRE_SIZE", "GOAL_SIZE", "NearPairs", "Neighbours", "SCAN_SLOT", "SIZES_3D",
+           "add_sensor_noise", "camera_observation", "elevation_of", "goal_observation", "goal_polar", "measure_pairs",
+           "measured", "near_neighbours", "observation_size", "observe_neighbours", "off_axis", "piece_sizes",
+           "planar_entries", "sensor_normals", "state_size", "swarm_centre_state", "visibility"]
