@@ -357,8 +357,8 @@ def test_publish_threed_lands_whole_or_not_at_all(tmp_path, monkeypatch, capsys)
 
     tiny = ["checkpoints_dir=checkpoints", "threed.episodes=1", "threed.scenarios=[wall3d]", "threed.baselines=[policy_op]", "threed.gif_size=[40,80]",
             "threed.gif_stride=250", "threed.policies=[checkpoints/<reading>/threed/policy3_g/seed0.pt]",
-            "threed.scaling.0.sizes=[5]", "threed.scaling.0.episodes=1", "threed.scaling.0.policy=policy_op",
-            "threed.scaling.0.others=[]"]
+            *(f"threed.scaling.{k}.{key}" for k in (0, 1)   # both scaling runs (train3d, forest3d), tiny
+              for key in ("sizes=[5]", "episodes=1", "policy=policy_op", "others=[]"))]
     stopped_at_several_writes(tmp_path, monkeypatch, capsys,
                               lambda root: sandbox(root, {"paper_fit/threed/policy3_g": ["seed0.pt"]}),
                               lambda: publish_threed(settings(tiny)), points=("middle", "staged"))
