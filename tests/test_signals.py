@@ -294,14 +294,14 @@ def test_a_signal_to_the_group_while_collector_workers_start_ends_in_seconds(tmp
 
 
 # ---------------------------------------------------------------------------- joblib sweeps stopped or killed
-@pytest.mark.slow
-def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_jobs_do_not_start(tmp_path):
+def two_jobs_checkpointed(tmp_path, *overrides):
+    """A tiny joblib sweep of two jobs at a time (its own process group), once both running jobs
+    have written a checkpoint: ``(proc, sweep folder, the two jobs' folders)``."""
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     sweep = tmp_path / "sweep"
     proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/launcher=joblib",
                              "hydra.launcher.n_jobs=2", *TINY, "experiment.max_frames=100000",
-                             "experiment.checkpoint_every_frames=64", "experiment.eval_every_frames=64", "seed=0,1,2",
-                             f"hydra.sweep.dir={sweep}"],
+                             "experiment.checkpoint_every_frames=64", *overrides, f"hydra.sweep.dir={sweep}"],
                             cwd=tmp_path, env=script_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     deadline = time.time() + 300
@@ -309,6 +309,12 @@ def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_job
         time.sleep(0.1)
     folders = sorted(p.parent for p in sweep.rglob("last.pt"))
     assert len(folders) == 2, proc.communicate() if proc.poll() is not None else "no checkpoints"
+    return proc, sweep, folders
+
+
+@pytest.mark.slow
+def test_every_job_of_a_stopped_joblib_sweep_prints_its_resume_line_and_held_jobs_do_not_start(tmp_path):
+    proc, sweep, folders = two_jobs_checkpointed(tmp_path, "experiment.eval_every_frames=64", "seed=0,1,2")
     os.killpg(proc.pid, signal.SIGTERM)
     try:
         out, err = proc.communicate(timeout=120)
@@ -338,18 +344,7 @@ def test_the_job_workers_of_a_killed_joblib_sweep_end_with_it_and_free_their_fol
     and the rerun takes the folder."""
     from filelock import FileLock
 
-    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
-    sweep = tmp_path / "sweep"
-    proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "train.py"), "-m", "hydra/launcher=joblib",
-                             "hydra.launcher.n_jobs=2", *TINY, "experiment.max_frames=100000",
-                             "experiment.checkpoint_every_frames=64", "seed=0,1", f"hydra.sweep.dir={sweep}"],
-                            cwd=tmp_path, env=script_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
-    deadline = time.time() + 300
-    while len(list(sweep.rglob("last.pt"))) < 2 and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.1)
-    folders = sorted(p.parent for p in sweep.rglob("last.pt"))
-    assert len(folders) == 2, proc.communicate() if proc.poll() is not None else "no checkpoints"
+    proc, sweep, folders = two_jobs_checkpointed(tmp_path, "seed=0,1")
     workers = [int((f / ".lock.holder").read_text().split()[1]) for f in folders]  # "PID <pid> on <host>, ..."
     assert proc.pid not in workers and all(alive(w) for w in workers)
     os.kill(proc.pid, signal.SIGKILL)  # the sweep's process alone: it cannot pass anything on
