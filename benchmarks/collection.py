@@ -29,7 +29,7 @@ from flock_torchrl.config import TrainConfig  # noqa: E402
 from flock_torchrl.policies.learners import make_learner  # noqa: E402
 from flock_torchrl.run.batches import AgentwiseDone  # noqa: E402
 from flock_torchrl.run.parts import make_collectors, make_envs  # noqa: E402
-from flock_torchrl.run.trainer import make_train_config  # noqa: E402
+from flock_torchrl.run.setup import make_train_config  # noqa: E402
 
 
 def collection_lines(compile: bool = True, steps: int = 300, rounds: int = 7) -> list[str]:

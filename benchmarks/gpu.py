@@ -45,7 +45,7 @@ def fast_updates() -> int:
     """Updates of one ``experiment=fast`` run: its batches after the random frames, times the
     updates per batch (from the composed recipe)."""
     from flock_torchrl.config import TrainConfig
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     exp = TrainConfig.from_config(make_train_config("policy3_g", "fast")).experiment
     frames = exp.num_envs * exp.steps_per_batch
@@ -72,7 +72,7 @@ def reserve_for(recipe: str) -> int:
     """The loops' ``reset_pool``: a reserve of fresh worlds for 64 steps of the recipe's worlds
     (at least 256), so a loop reads the device for its resets once in 64 steps at most."""
     from flock_torchrl.config import TrainConfig
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     return max(256, 64 * TrainConfig.from_config(make_train_config("policy3_g", recipe)).experiment.num_envs)
 

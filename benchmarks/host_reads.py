@@ -27,7 +27,8 @@ if not __package__:  # `python benchmarks/host_reads.py`: the repository's root,
 from flock_torchrl.capture import captured  # noqa: E402
 from flock_torchrl.config import TrainConfig  # noqa: E402
 from benchmarks.counting import HostReads  # noqa: E402
-from flock_torchrl.run.trainer import Training, make_train_config  # noqa: E402
+from flock_torchrl.run.trainer import Training  # noqa: E402
+from flock_torchrl.run.setup import make_train_config  # noqa: E402
 from flock_torchrl.world.step import transition  # noqa: E402
 
 WARMUP = 20  # iterations after the random frames before counting: every capture's warm-up is over

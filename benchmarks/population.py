@@ -34,7 +34,7 @@ import torch  # noqa: E402
 
 from flock_torchrl.config import TrainConfig  # noqa: E402
 from flock_torchrl.run.launch import train  # noqa: E402
-from flock_torchrl.run.trainer import make_train_config  # noqa: E402
+from flock_torchrl.run.setup import make_train_config  # noqa: E402
 
 LOOP = ("collection", "buffer", "sampling", "update", "members")
 
@@ -43,7 +43,7 @@ def recipe_transitions(recipe: str):
     """``(config, env, transitions)``: Policy3-G under ``recipe`` and 200 steps of one world's
     swarm transitions (random actions), what the in-process measurements feed the learners."""
     from flock_torchrl import FlockingEnv
-    from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+    from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done
 
     cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, ["progress=false", "logger=none",
                                                                           "reading=paper_fit"]))

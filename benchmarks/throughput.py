@@ -42,7 +42,7 @@ from flock_torchrl.config import ConfigError, Schema, algo_config, check_device,
 from flock_torchrl.io import write_text
 from flock_torchrl.policies.learners import OffPolicyLearner, compiled
 from flock_torchrl.policies.models import ACTION, LOG_PROB
-from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
 from benchmarks.gpu import gpu_lines, projection_line
 from benchmarks.host_reads import host_read_lines, launch_lines
@@ -218,7 +218,7 @@ def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[
     import tempfile
 
     from flock_torchrl.run.launch import train
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     rates, splits = {}, []
     for name, compile in (("eager", False), ("compiled", True)):

@@ -86,7 +86,7 @@ def _say(message: str) -> None:
 
 # -- train
 def _prepare_train(cfg: TrainConfig, out: Path) -> None:
-    from .run.trainer import prepare
+    from .run.setup import prepare
 
     prepare(cfg, out)
 

@@ -84,7 +84,7 @@ SHIPPED = ROOT / "checkpoints" / "paper_fit" / "policy3_g" / "seed0.pt"
 
 def tiny(*overrides: str):
     """Policy3-G's config on :data:`TINY` and ``overrides``."""
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     return make_train_config("policy3_g", "tiny", [*TINY, *overrides])
 
@@ -92,7 +92,7 @@ def tiny(*overrides: str):
 def tiny_pipeline(policy: str = "policy3_g", *overrides: str, logger: str = "csv"):
     """The learning pipeline's tiny run (tests/test_training.py): the tiny experiment with its own
     periodic evaluations, 60-step episodes and a logger."""
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     # Short episodes keep the periodic evaluations (untrained policies never arrive) fast.
     return make_train_config(policy, "tiny", ["scenario.max_steps=60", "progress=false", f"logger={logger}",

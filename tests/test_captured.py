@@ -13,7 +13,8 @@ from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.policies.learners import make_learner
 from flock_torchrl.policies.learners import OffPolicyLearner
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import Training, make_train_config
+from flock_torchrl.run.trainer import Training
+from flock_torchrl.run.setup import make_train_config
 
 from test_population import quick_config, transitions
 

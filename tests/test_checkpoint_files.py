@@ -19,7 +19,7 @@ from flock_torchrl import CheckpointError, load_policy
 from flock_torchrl.policies.checkpoint import export_policy, load_checkpoint, save_checkpoint
 from flock_torchrl.run import parts
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 
 
 # ---------------------------------------------------------------------------- refused in one line, never loaded unsafely

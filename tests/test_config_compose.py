@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 from flock_torchrl import FlockingEnv
 from flock_torchrl.config import (ALGO_SCHEMAS, EVAL_SEED, POLICY_SCENARIO_FIELDS, ConfigError, ExperimentConfig,
                                   TrainConfig, algo_config, available, compose, scenario_config)
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 
 
 def check_train_config(cfg):

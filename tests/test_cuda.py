@@ -46,7 +46,7 @@ def test_training_and_evaluation_on_cuda(tmp_path):
 
 def test_a_captured_update_on_cuda_equals_the_uncaptured_one():
     from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done
+    from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done
     from flock_torchrl.config import TrainConfig
 
     cfg = TrainConfig.from_config(make_train_config("policy3_g", "tiny", ["device=cuda"]))

@@ -881,7 +881,7 @@ def test_a_reused_finished_run_says_which_run_it_shows(tmp_path, capsys, monkeyp
     run folder's checkpoint and evaluation it prints."""
     from flock_torchrl.cli import _run_train
     from flock_torchrl.config import TrainConfig
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     monkeypatch.chdir(tmp_path)
     cfg = TrainConfig.from_config(make_train_config("policy3_g", "tiny", [

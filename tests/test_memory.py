@@ -13,7 +13,7 @@ import pytest
 from helpers import TINY, first_fast, one_line, script, script_env, tiny
 
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 
 
 # ---------------------------------------------------------------------------- refused before anything is written

@@ -12,7 +12,8 @@ from flock_torchrl.config import ConfigError, algo_config, app_config, compose
 from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.policies.learners import OffPolicyLearner
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import TRANSITION_KEYS, agentwise_done, make_train_config, per_uav
+from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done, per_uav
+from flock_torchrl.run.setup import make_train_config
 
 
 def swarm_batch(n_uavs: int, steps: int = 3):

@@ -16,7 +16,8 @@ from flock_torchrl.policies.learners import OffPolicyLearner, make_learner
 from flock_torchrl.policies.members import MemberSampler
 from flock_torchrl.run.launch import train
 from flock_torchrl.run.shipping import ship_checkpoints
-from flock_torchrl.run.trainer import TRANSITION_KEYS, Training, agentwise_done, make_train_config
+from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done
+from flock_torchrl.run.setup import make_train_config
 from flock_torchrl.world.population import PopulationEnv
 
 # Short episodes, so that worlds end (and reset) inside a few hundred frames.

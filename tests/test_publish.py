@@ -433,7 +433,7 @@ def test_the_demos_lines_and_readme_land_together(tmp_path, monkeypatch, capsys)
 def test_ship_lands_the_collection_and_its_manifest_whole_or_not_at_all(tmp_path, monkeypatch, capsys):
     from flock_torchrl.run.launch import train
     from flock_torchrl.run.shipping import ship_checkpoints
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     runs = tmp_path / "runs"
     for seed in (0, 1):

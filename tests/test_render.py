@@ -84,7 +84,7 @@ def test_trajectory_plot_and_animation_files(tmp_path, s5_rollout):
 
 def test_reward_curves_from_checkpoints(tmp_path):
     from flock_torchrl.policies.checkpoint import save_checkpoint
-    from flock_torchrl.run.trainer import EPISODE_COLUMNS
+    from flock_torchrl.run.batches import EPISODE_COLUMNS
 
     root = tmp_path / "checkpoints"
     for seed, offset in ((0, 0.0), (1, 2.0)):

@@ -17,7 +17,7 @@ from flock_torchrl.config import ConfigError, TrainConfig
 from flock_torchrl.run.batches import AgentwiseDone
 from benchmarks.counting import HostReads
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 from flock_torchrl.world.step import WHOLE_WARMUP
 from flock_torchrl.world.population import PopulationEnv
 from flock_torchrl.world.step import transition

@@ -18,7 +18,7 @@ from helpers import TINY, finish, one_line, script, start, tiny, wait_for
 
 from flock_torchrl import CheckpointError
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 
 
 # ---------------------------------------------------------------------------- the lock

@@ -9,7 +9,7 @@ from flock_torchrl.policies.checkpoint import load_checkpoint
 from flock_torchrl.run import trainer
 from flock_torchrl.run.shipping import ship_checkpoints
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 
 
 def tiny_run(runs, experiment_folder, seed, **overrides):

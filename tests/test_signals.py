@@ -54,7 +54,7 @@ def test_app_signals_note_until_the_run_is_checked_then_stop():
 
 @pytest.mark.slow
 def test_a_second_ctrl_c_aborts_at_once():
-    from flock_torchrl.run.trainer import Signals, Stopped
+    from flock_torchrl.run.signals import Signals, Stopped
 
     before = signal.getsignal(signal.SIGINT)
     with Signals() as signals:
@@ -70,7 +70,7 @@ def test_a_second_ctrl_c_aborts_at_once():
 def test_a_second_signal_in_training_says_where_it_stopped_and_how_to_resume():
     """The Stopped of a second Ctrl-C in the loop carries the run's resume command, and says
     "during training"; one outside a loop (an app's start) says that."""
-    from flock_torchrl.run.trainer import Signals, Stopped
+    from flock_torchrl.run.signals import Signals, Stopped
 
     with Signals("python scripts/train.py -cd runs/x -cn resume") as signals:
         signals.handle(signal.SIGINT, None)

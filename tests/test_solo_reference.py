@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from flock_torchrl.run.launch import train
-from flock_torchrl.run.trainer import make_train_config
+from flock_torchrl.run.setup import make_train_config
 
 DATA = Path(__file__).parent / "data"
 spec = __import__("importlib.util").util.spec_from_file_location("make_solo_reference",

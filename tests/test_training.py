@@ -169,7 +169,7 @@ def test_compile_step_compiles_the_env_and_leaves_the_loss_eager():
 
     from flock_torchrl.config import TrainConfig
     from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.run.trainer import make_env
+    from flock_torchrl.run.parts import make_env
 
     for mode, step, loss in (("step", True, False), ("loss", False, True)):
         cfg = TrainConfig.from_config(tiny_pipeline("policy3_g", f"compile={mode}"))

@@ -27,7 +27,7 @@ from ..policies.checkpoint import load_checkpoint
 from ..policies.registry import shipped_checkpoints
 from ..config import FiguresConfig
 from ..run.rollout import rollout_episode
-from ..run.trainer import EPISODE_COLUMNS
+from ..run.batches import EPISODE_COLUMNS
 from ..world.frame import (DPI, draw_moving, draw_obstacles, draw_static, draw_uavs, frame_image, image_size, rollout_states,
                            style_axes, world_extent)
 from .reference import PAPER_RECIPE_ROW, table_entries

@@ -13,7 +13,7 @@ from .results import EvaluationResult
 from .rollout import evaluate, evaluate_handle, rollout_episode
 from .setup import make_train_config
 from .signals import TrainingInterrupted
-from .trainer import TrainResult
+from .parts import TrainResult
 
 
 @contextlib.contextmanager

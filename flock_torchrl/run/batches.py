@@ -63,6 +63,17 @@ def per_uav(batch: TensorDictBase, lead: int = 0) -> TensorDictBase:
     return out
 
 
+
+def replay_rows(batch: TensorDictBase, k: int, single_uavs: bool) -> TensorDictBase:
+    """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones
+    (:func:`per_uav`) when the sizes are mixed; for ``k`` members (member-major worlds), rows
+    ``[R, k]`` with member j's transitions in column j."""
+    if k == 1:
+        return per_uav(batch) if single_uavs else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+    if single_uavs:
+        return per_uav(batch.reshape(k, -1), lead=1).transpose(0, 1).contiguous()
+    return batch.select(*TRANSITION_KEYS, strict=False).reshape(k, -1).transpose(0, 1).contiguous()
+
 def episode_values(episodes: TensorDictBase) -> torch.Tensor:
     """The :data:`EPISODE_METRICS` of ``"episode"`` entries ``[*S]`` as one float64 tensor
     ``[*S, M]`` (a copy, on their device)."""
@@ -131,4 +142,4 @@ class PendingEpisodes:
 
 
 __all__ = ["AgentwiseDone", "EPISODE_COLUMNS", "EPISODE_METRICS", "Finished", "PendingEpisodes", "TRANSITION_KEYS",
-           "agentwise_done", "episode_rows", "episode_values", "per_uav"]
+           "agentwise_done", "episode_rows", "episode_values", "per_uav", "replay_rows"]

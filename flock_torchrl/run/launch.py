@@ -10,7 +10,8 @@ from omegaconf import DictConfig, OmegaConf
 from ..config import TrainConfig
 from .run_folder import RunLock, clean_stale_temporaries
 from .setup import hydra_output_dir, prepare
-from .trainer import Training, TrainResult
+from .trainer import Training
+from .parts import TrainResult
 
 
 def train(cfg: TrainConfig | DictConfig | dict, run_dir: str | os.PathLike | None = None) -> TrainResult:

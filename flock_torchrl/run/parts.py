@@ -235,6 +235,28 @@ def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float
     return result_row(result, frames)
 
 
+
+def evaluate_members(cfg: TrainConfig, actor: Any, learner: Any, members: Any, frames: int
+                     ) -> tuple[dict[str, float], dict[str, float]]:
+    """Evaluate every member that is not final (a final member's last evaluation stands): those
+    still training in one batched rollout when there are several, a member alone as a solo run is
+    (``actor``, the learner's copy, takes each one's weights). Returns the run's row (the members'
+    mean) and the scalars to log (:meth:`~flock_torchrl.run.members.Members.evaluated`)."""
+    from .rollout import evaluate_members as evaluate_batched
+
+    live, batched = members.live(), {}
+    if len(live) > 1:
+        params = learner.params.get("actor_network_params")[torch.tensor(live, device=learner.params.device)]
+        results = evaluate_batched(actor, params.detach(), cfg.scenario, cfg.experiment.eval_episodes,
+                                   cfg.eval_seed, cfg.device)
+        batched = {k: result_row(result, frames) for k, result in zip(live, results)}
+
+    def alone(k: int, weights: dict[str, torch.Tensor], at: int) -> dict[str, float]:
+        actor.load_state_dict(weights)
+        return evaluation_row(cfg, actor, at)
+
+    return members.evaluated(batched, alone, learner, frames)
+
 def result_row(result: Any, frames: int) -> dict[str, float]:
     """An evaluation's row of a run's log: the protocol's summary, its success and return, at ``frames``."""
     row = {k: float(v) for k, v in result.summary().items()}
@@ -282,6 +304,6 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluation_row", "policy_capture",
-           "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer", "restore_buffer",
-           "write_checkpoint"]
+__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluate_members", "evaluation_row",
+           "policy_capture", "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
+           "restore_buffer", "write_checkpoint"]

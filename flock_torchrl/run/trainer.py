@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -34,17 +35,14 @@ from ..config import TrainConfig
 from ..policies.checkpoint import LAST
 from ..policies.learners import make_learner
 from ..policies.members import MemberSampler
-from .batches import EPISODE_COLUMNS, TRANSITION_KEYS, PendingEpisodes, agentwise_done, per_uav
+from .batches import PendingEpisodes, replay_rows
 from .members import Members
-from .parts import (Learner, TrainResult, buffer_state, evaluation_row, make_collectors, make_env, make_envs,
-                    replay_buffer, restore_buffer, restore_rng, result_row, rng_state, write_checkpoint)
-from .rollout import evaluate_members
+from .parts import (Learner, TrainResult, buffer_state, evaluate_members, make_collectors, make_envs, replay_buffer,
+                    restore_buffer, restore_rng, rng_state, write_checkpoint)
 from .run_folder import logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
 from .schedule import Schedule, evaluated_at_end
-from .setup import (checkpoint_meta, config_differences, hydra_output_dir, hydra_settings, make_train_config,
-                    memory_estimate, prepare, resume_payload)
-from .signals import (SHUTDOWN_TIMEOUT, STOP_SIGNALS, Signals, Stopped, TrainingInterrupted, job_tag, say,
-                      shutdown, start_resource_tracker)
+from .setup import checkpoint_meta, hydra_settings, resume_payload
+from .signals import Signals, Stopped, TrainingInterrupted, job_tag, say, shutdown, start_resource_tracker
 from .timing import Progress, TimeSplit, rates, seeds_label
 
 
@@ -88,7 +86,7 @@ class Training:
                 states = payload["env_state"]
                 for env, state in zip(self.envs, states if self.mixed else [states]):
                     env.set_state(state)
-        steps = exp.steps_per_batch if off_policy else cfg.algo.rollout_steps
+        self.steps = steps = exp.steps_per_batch if off_policy else cfg.algo.rollout_steps  # per batch
         init_random = max(0, exp.init_random_frames - self.counters["frames"]) if off_policy else 0
         # An off-policy batch is copied into the replay buffer before the next is collected: the
         # collector may overwrite it (an on-policy learner writes its advantages into its batch).
@@ -181,7 +179,7 @@ class Training:
                 return learner.update(batches[0]), 1
         with split.timer("buffer"):
             for batch in batches:
-                self.buffer.extend(self._transitions(batch))
+                self.buffer.extend(replay_rows(batch, self.k, self.per_uav))
         if self.counters["frames"] < exp.init_random_frames or len(self.buffer) < self.buffer.batch_size:
             return {}, 0
         stats: dict[str, torch.Tensor] = {}
@@ -191,15 +189,6 @@ class Training:
             with split.timer(self._update_bucket()):
                 stats = learner.update(sample)
         return stats, exp.updates_per_batch
-
-    def _transitions(self, batch: TensorDictBase) -> TensorDictBase:
-        """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones when
-        the sizes are mixed; for several members, rows ``[R, K]`` (member k's transitions in column k)."""
-        if self.k == 1:
-            return per_uav(batch) if self.per_uav else batch.select(*TRANSITION_KEYS, strict=False).reshape(-1)
-        if self.per_uav:
-            return per_uav(batch.reshape(self.k, -1), lead=1).transpose(0, 1).contiguous()
-        return batch.select(*TRANSITION_KEYS, strict=False).reshape(self.k, -1).transpose(0, 1).contiguous()
 
     def _update_bucket(self) -> str:
         """Where an update's time goes: a compiled learner's first one in this process compiles."""
@@ -212,7 +201,6 @@ class Training:
         GPU an iteration then never waits for the device)."""
         self.counters["episodes"] = self.members.tally(self.pending.flush())
 
-    # ---------------------------------------------------------------- logs, evaluation
     def _open_logs(self, resumed: bool) -> None:
         truncate_scalar_logs(self.run_dir, self.counters["frames"] if resumed else None)  # fresh: a dead run's go
         log, label = self.cfg.logger, seeds_label(self.members.seeds)
@@ -220,12 +208,10 @@ class Training:
                                   f"{self.cfg.policy.id}_{label.replace(' ', '')}")
         if self.logger is not None:
             self.logger.log_hparams(logger_hparams(self.resolved))
-        if self.cfg.progress:
+        if self.cfg.progress:  # the random frames (no update) are left out of its rate
             exp = self.cfg.experiment
-            off_policy = self.learner.off_policy
-            per_batch = exp.num_envs * (exp.steps_per_batch if off_policy else self.cfg.algo.rollout_steps)
-            self.progress = Progress(exp.max_frames, self.counters, f"{self.cfg.policy.name} {label}", per_batch,
-                                     exp.init_random_frames if off_policy else 0)
+            self.progress = Progress(exp.max_frames, self.counters, f"{self.cfg.policy.name} {label}",
+                                     exp.num_envs * self.steps, exp.init_random_frames * self.learner.off_policy)
         self.members.open_logs(resumed)
 
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:
@@ -242,34 +228,17 @@ class Training:
         if self.logger is not None and values:
             self.logger.log_metrics(values, step=self.counters["frames"])  # one row per logging event
 
-    def _print(self, message: str) -> None:
-        message = job_tag() + message  # a sweep's jobs share the terminal: each line says whose it is
-        if self.progress is not None:
-            self.progress.write(message)
-        else:
-            print(message, flush=True)
+    def _print(self, message: str) -> None:  # a sweep's jobs share the terminal: each line says whose it is
+        write = self.progress.write if self.progress is not None else functools.partial(print, flush=True)
+        write(job_tag() + message)
 
     def _evaluate(self) -> dict[str, float]:
-        """Evaluate every member that is not final (a final member's last evaluation stands): those
-        still training in one batched rollout when there are several, a member alone as a solo run is."""
-        live = self.members.live()
-        batched = {}
-        if len(live) > 1:
-            params = self.learner.params.get("actor_network_params")[torch.tensor(live, device=self.learner.params.device)]
-            results = evaluate_members(self._eval_actor, params.detach(), self.cfg.scenario,
-                                       self.cfg.experiment.eval_episodes, self.cfg.eval_seed, self.cfg.device)
-            batched = {k: result_row(result, self.counters["frames"]) for k, result in zip(live, results)}
-
-        def alone(k: int, actor: dict[str, torch.Tensor], frames: int) -> dict[str, float]:
-            self._eval_actor.load_state_dict(actor)
-            return evaluation_row(self.cfg, self._eval_actor, frames)
-
-        summary, scalars = self.members.evaluated(batched, alone, self.learner, self.counters["frames"])
+        summary, scalars = evaluate_members(self.cfg, self._eval_actor, self.learner, self.members,
+                                            self.counters["frames"])
         self.evaluations.append(summary)
         self._log(scalars)
         return summary
 
-    # ---------------------------------------------------------------- the end
     def _finish(self, signals: Signals) -> TrainResult:
         """Every run ends with an evaluation of what it ships, after a checkpoint: a signal
         during it stops at once, and the resumed run evaluates before it counts as finished."""
@@ -327,8 +296,5 @@ class Training:
         return path
 
 
-# Also importable from here: the names the apps, reports and benchmarks use.
-__all__ = ["EPISODE_COLUMNS", "Learner", "SHUTDOWN_TIMEOUT", "STOP_SIGNALS", "Signals", "Stopped", "TRANSITION_KEYS",
-           "TrainResult", "TrainingInterrupted", "Training", "agentwise_done", "checkpoint_meta", "config_differences",
-           "hydra_output_dir", "make_env", "make_train_config", "memory_estimate", "per_uav", "prepare",
-           "replay_buffer", "start_resource_tracker"]
+
+__all__ = ["Training"]

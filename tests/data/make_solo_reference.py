@@ -77,7 +77,7 @@ def run_digest(run_dir: Path) -> dict[str, str]:
 
 def record(folder: Path) -> dict:
     from flock_torchrl.run.launch import train
-    from flock_torchrl.run.trainer import make_train_config
+    from flock_torchrl.run.setup import make_train_config
 
     runs = {}
     for name, (policy, extra) in RUNS.items():
