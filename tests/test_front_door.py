@@ -858,6 +858,7 @@ def test_the_yaml_check_reads_only_the_files_the_composition_uses(tmp_path):
 def test_a_populations_progress_bar_names_its_seeds(tmp_path, monkeypatch):
     from flock_torchrl.run import trainer
     from flock_torchrl.run.launch import train
+    from flock_torchrl.run.setup import make_train_config
     from flock_torchrl.run.timing import seeds_label
 
     assert seeds_label([3]) == "seed 3" and seeds_label(range(10)) == "seeds 0-9" and seeds_label([1, 4]) == "seeds 1,4"
@@ -871,8 +872,8 @@ def test_a_populations_progress_bar_names_its_seeds(tmp_path, monkeypatch):
     monkeypatch.setattr(trainer, "Progress", Recorded)
     quick = ["logger=none", "scenario.max_steps=30", "experiment.eval_episodes=2", "experiment.max_frames=64",
              "experiment.eval_every_frames=0", "progress=true"]
-    train(trainer.make_train_config("policy3_g", "tiny", ["seed=3", "population=2", *quick]), tmp_path / "population")
-    train(trainer.make_train_config("policy3_g", "tiny", ["seed=3", *quick]), tmp_path / "solo")
+    train(make_train_config("policy3_g", "tiny", ["seed=3", "population=2", *quick]), tmp_path / "population")
+    train(make_train_config("policy3_g", "tiny", ["seed=3", *quick]), tmp_path / "solo")
     assert labels == ["Policy3-G seeds 3-4", "Policy3-G seed 3"]
 
 

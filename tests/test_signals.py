@@ -19,7 +19,7 @@ from helpers import (ROOT, TINY, finish, first_fast, frames_at, resume_line, run
                      tiny, wait_for, wait_until)
 
 from flock_torchrl.policies.checkpoint import load_checkpoint
-from flock_torchrl.run import trainer
+from flock_torchrl.run.signals import SHUTDOWN_TIMEOUT
 from flock_torchrl.run.launch import train
 
 
@@ -227,12 +227,12 @@ def test_signals_to_the_process_group_with_collector_processes(tmp_path, signum)
     os.killpg(proc.pid, signum)
     began = time.time()
     try:
-        out, err = proc.communicate(timeout=trainer.SHUTDOWN_TIMEOUT + 60)
+        out, err = proc.communicate(timeout=SHUTDOWN_TIMEOUT + 60)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)
         raise AssertionError("the run hung after the signal")
     assert proc.returncode == 128 + signum, err
-    assert time.time() - began < trainer.SHUTDOWN_TIMEOUT + 30
+    assert time.time() - began < SHUTDOWN_TIMEOUT + 30
     assert "Traceback" not in err and f"stopped by {signal.Signals(signum).name}" in err
     assert 0 < frames_at(folder / "last.pt") < 100000
 

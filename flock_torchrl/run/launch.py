@@ -19,7 +19,7 @@ def train(cfg: TrainConfig | DictConfig | dict, run_dir: str | os.PathLike | Non
 
     Args:
         cfg: a checked :class:`TrainConfig`, or the composed ``conf/train.yaml`` (Hydra's, or
-            :func:`~flock_torchrl.run.trainer.make_train_config`'s), converted and checked here.
+            :func:`~flock_torchrl.run.setup.make_train_config`'s), converted and checked here.
         run_dir: the run folder; default: Hydra's output folder (``scripts/train.py``).
 
     Raises:
