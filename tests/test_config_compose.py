@@ -22,11 +22,15 @@ ALL_POLICIES = ["policy1", "policy1_g", "policy2", "policy2_g", "policy3", "poli
 LEARNED = ALL_POLICIES[:10]
 
 
-def test_every_policy_has_a_yaml_whose_id_is_its_name():
+def test_every_policy_has_a_yaml_whose_id_is_its_name_and_that_sets_only_policy_fields():
+    # A checkpoint records POLICY_SCENARIO_FIELDS: a policy YAML may set nothing else of the world.
     assert set(ALL_POLICIES) <= set(available("policy"))
+    base = compose("world", []).scenario
     for policy in ALL_POLICIES:
         cfg = compose("world", [f"policy={policy}"])
         assert cfg.policy.id == policy
+        changed = {k for k in base if base[k] != cfg.scenario[k]}
+        assert changed <= set(POLICY_SCENARIO_FIELDS), (policy, changed)
 
 
 EXPERIMENTS = ["paper", "fast", "mixed", "demo", "tiny"]
@@ -73,16 +77,11 @@ def test_policy_table_matches_the_specification():
         assert math.isclose(cfg.scenario.fov, 0.5 * math.pi)
 
 
-def test_policy_yamls_set_only_policy_fields():
-    # A checkpoint records POLICY_SCENARIO_FIELDS: a policy YAML may set nothing else of the world.
-    base = compose("world", []).scenario
-    for policy in ALL_POLICIES:
-        composed = compose("world", [f"policy={policy}"]).scenario
-        changed = {k for k in base if base[k] != composed[k]}
-        assert changed <= set(POLICY_SCENARIO_FIELDS), (policy, changed)
-
-
-@pytest.mark.parametrize("group", ["algo", "experiment", "logger", "scenario", "reading", "tuning"])
+# Each experiment (so each tuning file) composes with every learner in the fast tier's
+# test_each_experiment_file_lists_the_learner_settings_it_changes, each scenario's env is built in
+# test_env.py, test_threed.py and test_forest.py: here those groups in the full tier.
+@pytest.mark.parametrize("group", ["algo", "logger", "reading", *(pytest.param(g, marks=pytest.mark.slow)
+                                                                  for g in ("experiment", "scenario", "tuning"))])
 def test_every_group_yaml_composes(group):
     names = available(group)
     assert names

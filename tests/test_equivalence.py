@@ -22,10 +22,14 @@ from flock_torchrl.world.step import advance, noise_draws, sense
 # Every kind of world: one UAV, fewer UAVs than camera slots, no obstacles, moving obstacles,
 # S4 noise, a spread swarm of 20 (where the eager step packs the pairs in range), obstacles
 # drawn per world (where it casts beams only at the obstacles in range).
-CASES = [("train", "policy3_g", {}), ("s1", "policy3_g", {"n_uavs": 1}), ("s1", "policy1", {"n_uavs": 2}),
-         ("s2", "policy5_g", {}), ("s3", "policy4_g", {}), ("s4", "policy3_g", {}), ("s5", "policy1", {}),
-         ("train", "policy3_g", {"n_uavs": 20, "reading": "paper_fit"}), ("forest", "policy3_g", {}),
-         ("forest", "policy4_g", {"n_moving": 2})]
+# The fast tier: the training world, one UAV, S4's noise, the spread swarm and the forest with moving
+# obstacles; the rest in the full tier.
+SLOW = pytest.mark.slow
+CASES = [("train", "policy3_g", {}), ("s1", "policy3_g", {"n_uavs": 1}),
+         pytest.param("s1", "policy1", {"n_uavs": 2}, marks=SLOW), pytest.param("s2", "policy5_g", {}, marks=SLOW),
+         pytest.param("s3", "policy4_g", {}, marks=SLOW), ("s4", "policy3_g", {}),
+         pytest.param("s5", "policy1", {}, marks=SLOW), ("train", "policy3_g", {"n_uavs": 20, "reading": "paper_fit"}),
+         pytest.param("forest", "policy3_g", {}, marks=SLOW), ("forest", "policy4_g", {"n_moving": 2})]
 
 # A beam that grazes a circle hits at -b - sqrt(b^2 - c): float32 round-off in b^2 - c (about
 # 1e-7 * 10^2 m^2 at the 10 m range) becomes up to sqrt(1e-5) ~ 3e-3 m in the hit distance.
