@@ -63,7 +63,6 @@ def per_uav(batch: TensorDictBase, lead: int = 0) -> TensorDictBase:
     return out
 
 
-
 def replay_rows(batch: TensorDictBase, k: int, single_uavs: bool) -> TensorDictBase:
     """A collector batch as the replay buffer's items: swarm transitions, or single-UAV ones
     (:func:`per_uav`) when the sizes are mixed; for ``k`` members (member-major worlds), rows
@@ -73,6 +72,7 @@ def replay_rows(batch: TensorDictBase, k: int, single_uavs: bool) -> TensorDictB
     if single_uavs:
         return per_uav(batch.reshape(k, -1), lead=1).transpose(0, 1).contiguous()
     return batch.select(*TRANSITION_KEYS, strict=False).reshape(k, -1).transpose(0, 1).contiguous()
+
 
 def episode_values(episodes: TensorDictBase) -> torch.Tensor:
     """The :data:`EPISODE_METRICS` of ``"episode"`` entries ``[*S]`` as one float64 tensor

@@ -235,9 +235,8 @@ def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float
     return result_row(result, frames)
 
 
-
-def evaluate_members(cfg: TrainConfig, actor: Any, learner: Any, members: Any, frames: int
-                     ) -> tuple[dict[str, float], dict[str, float]]:
+def member_evaluations(cfg: TrainConfig, actor: Any, learner: Any, members: Any, frames: int
+                       ) -> tuple[dict[str, float], dict[str, float]]:
     """Evaluate every member that is not final (a final member's last evaluation stands): those
     still training in one batched rollout when there are several, a member alone as a solo run is
     (``actor``, the learner's copy, takes each one's weights). Returns the run's row (the members'
@@ -256,6 +255,7 @@ def evaluate_members(cfg: TrainConfig, actor: Any, learner: Any, members: Any, f
         return evaluation_row(cfg, actor, at)
 
     return members.evaluated(batched, alone, learner, frames)
+
 
 def result_row(result: Any, frames: int) -> dict[str, float]:
     """An evaluation's row of a run's log: the protocol's summary, its success and return, at ``frames``."""
@@ -304,6 +304,6 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
                               f"{'resume' if exists else 'run again'}") from None
 
 
-__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluate_members", "evaluation_row",
+__all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluation_row", "member_evaluations",
            "policy_capture", "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
            "restore_buffer", "write_checkpoint"]

@@ -37,8 +37,8 @@ from ..policies.learners import make_learner
 from ..policies.members import MemberSampler
 from .batches import PendingEpisodes, replay_rows
 from .members import Members
-from .parts import (Learner, TrainResult, buffer_state, evaluate_members, make_collectors, make_envs, replay_buffer,
-                    restore_buffer, restore_rng, rng_state, write_checkpoint)
+from .parts import (Learner, TrainResult, buffer_state, make_collectors, make_envs, member_evaluations,
+                    replay_buffer, restore_buffer, restore_rng, rng_state, write_checkpoint)
 from .run_folder import logger_hparams, make_logger, resume_command, truncate_scalar_logs, write_run_config
 from .schedule import Schedule, evaluated_at_end
 from .setup import checkpoint_meta, hydra_settings, resume_payload
@@ -233,8 +233,8 @@ class Training:
         write(job_tag() + message)
 
     def _evaluate(self) -> dict[str, float]:
-        summary, scalars = evaluate_members(self.cfg, self._eval_actor, self.learner, self.members,
-                                            self.counters["frames"])
+        summary, scalars = member_evaluations(self.cfg, self._eval_actor, self.learner, self.members,
+                                              self.counters["frames"])
         self.evaluations.append(summary)
         self._log(scalars)
         return summary
@@ -294,7 +294,6 @@ class Training:
         path = write_checkpoint(self._state(), self.ckpt_path)
         self.saved_frames = self.counters["frames"]
         return path
-
 
 
 __all__ = ["Training"]
