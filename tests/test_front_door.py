@@ -118,7 +118,9 @@ def test_the_standing_row_judges_the_paper_camera_twin_cell_by_cell(tmp_path):
     """By hand (500 episodes a cell, Wilson intervals): the twin's 0.99 [0.977, 0.996] against
     Policy-MA's 0.80 [0.76, 0.84] is above beyond both intervals; 0.70 [0.658, 0.739] against 0.72
     [0.68, 0.76] is below with the intervals overlapping (met); 0.40 [0.357, 0.444] against the same
-    is below beyond both (not met). Two scenarios of those three cells: 4 of 6 met, 2 above."""
+    is below beyond both (not met). Two scenarios of those three cells: 4 of 6 met, 2 above. In space
+    (train3d alone) the same twin 2 of 3 met, 1 above; the all-round flock's 0.75 [0.710, 0.786] overlaps
+    0.80 [0.76, 0.84] and is at or above 0.72 twice: 3 of 3 met, none above."""
     from flock_torchrl.report.standing import scaling_row
 
     head = "policy,n_uavs,success_rate,safe_success_rate,safe_success_rate_low,safe_success_rate_high,n_episodes"
@@ -134,6 +136,15 @@ def test_the_standing_row_judges_the_paper_camera_twin_cell_by_cell(tmp_path):
     row = scaling_row(tmp_path)
     assert "its twin with the paper's 0.5 pi camera (Policy3-G-crowd-ramp-radial) meets it in 4 of 6 cells " \
            "(2 above beyond both intervals)" in row, row
+    assert "in space" not in row, row  # no 3-D rows published: the row says nothing of space
+    # In space the same cells for the paper's-camera twin, on train3d only; the all-round flock 6 of 6, 0 above
+    space = [line.replace("mixed_cluttered,", "mixed_cluttered3d,") for line in lines]
+    space = [line.replace(",0.9,0,1,500", ",0.75,0,1,500") for line in space]
+    (tmp_path / "paper_fit" / "scaling_train3d.csv").write_text("\n".join(space) + "\n")
+    row = scaling_row(tmp_path)
+    assert row.endswith("(docs/scaling.md); in space (`experiment=mixed_cluttered3d`, docs/threed.md) Policy-MA is "
+                        "met by the all-round flock in 3 of 3 cells (0 above beyond both intervals) and its "
+                        "paper's-camera twin in 2 of 3 cells (1 above beyond both intervals) |"), row
 
 def test_readme_and_docs_links_exist():
     for doc in (README, *(ROOT / "docs").glob("*.md")):
@@ -167,7 +178,8 @@ def test_quoted_blocks_equal_the_files_that_write_them():
                                                             "results/paper_fit/table3_3d_brief.md"]
     assert [p for p, _, _ in blocks((ROOT / "docs" / "threed.md").read_text())] == [
         "results/paper_fit/table3_3d.md", "results/paper_fit/scaling3d_pooled.md",
-        "results/paper_fit/scaling_train3d.md", "results/paper_fit/scaling_forest3d.md"]
+        "results/paper_fit/scaling3d_pooled_paper_camera.md", "results/paper_fit/scaling_train3d.md",
+        "results/paper_fit/scaling_forest3d.md"]
     assert [p for p, _, _ in blocks((ROOT / "docs" / "throughput.md").read_text())] == ["results/benchmark.md"]
 
 

@@ -14,11 +14,10 @@ comparison per scenario and size, ``results/paper_fit/scaling_pooled.md`` (docs/
 from __future__ import annotations
 
 import csv
-import math
 import re
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
 from ..io import write_text
 from ..run.results import wilson_interval
@@ -181,16 +180,27 @@ def scaling_row(results: Path) -> str:
         judged += f", below it within the 95 % intervals in {tied}"
     if below:
         judged += f", below it beyond the intervals in {below}"
-    twin = [c for path in scenarios.values() if _has_rows(path, PAPER_CAMERA_POLICY)
-            for c in scaling_cells(path, PAPER_CAMERA_POLICY)]
-    met, above_twin = _met_and_above([_verdict(c) for c in twin])
-    camera = (f"; its twin with the paper's 0.5 pi camera ({PAPER_CAMERA_POLICY}) meets it in {met} of {len(twin)} "
-              f"cells ({above_twin} above beyond both intervals)") if twin else ""
+    twin = _cells_met(scenarios.values(), PAPER_CAMERA_POLICY)
+    camera = f"; its twin with the paper's 0.5 pi camera ({PAPER_CAMERA_POLICY}) meets it in {twin}" if twin else ""
+    space = [results / "paper_fit" / name for name in ("scaling_train3d.csv", "scaling_forest3d.csv")]
+    flocks = [(name, _cells_met(space, policy)) for name, policy in (("the all-round flock", SCALING_POLICY),
+                                                                      ("its paper's-camera twin", PAPER_CAMERA_POLICY))]
+    flocks = [f"{name} in {met}" for name, met in flocks if met]
+    space_clause = (f"; in space (`experiment=mixed_cluttered3d`, docs/threed.md) Policy-MA is met by "
+                    f"{' and '.join(flocks)}" if flocks else "")
     return (f"| beyond the paper: flocks of {sizes[0]}-{sizes[-1]} UAVs (`paper_fit`) | your scenarios and "
             f"controllers through Hydra; {SCALING_POLICY} (`experiment=mixed_cluttered`, {_count(seeds)} seeds pooled, "
             f"{_count(episodes)} episodes per seed and cell; its actor sees all round): success "
             f"{_range([c['success'] for c in every])} at every size on both scenarios; safe success {judged}; "
-            f"at {sizes[-1]} UAVs {at_largest}{camera} (docs/scaling.md) |")
+            f"at {sizes[-1]} UAVs {at_largest}{camera} (docs/scaling.md){space_clause} |")
+
+
+def _cells_met(tables: Iterable[Path], policy: str) -> str:
+    """``"m of n cells (a above beyond both intervals)"``: section 11's count of ``policy``'s pooled cells
+    beside Policy-MA over the scaling tables that hold its rows; ``""`` where none does."""
+    cells = [c for path in tables if path.exists() and _has_rows(path, policy) for c in scaling_cells(path, policy)]
+    met, above = _met_and_above([_verdict(c) for c in cells])
+    return f"{met} of {len(cells)} cells ({above} above beyond both intervals)" if cells else ""
 
 
 def _met_and_above(verdicts: Sequence[str]) -> tuple[int, int]:
