@@ -205,7 +205,8 @@ def _run_ship(cfg: ShipConfig, out: Path) -> None:
             _say(f"nothing to ship under {source}")
             return
         ship_scenario_collection(cfg.scenario.reading, Path(spec["runs_dir"]), spec["experiment"], list(spec["names"]),
-                                 Path(cfg.checkpoints_dir) / cfg.scenario.reading / cfg.only, log=_say)
+                                 Path(cfg.checkpoints_dir) / cfg.scenario.reading / cfg.only, log=_say,
+                                 target=spec.get("target"))
         return
     folders = _ship_folders(cfg)
     if not any(f.is_dir() for f in folders):  # nothing trained under this reading: say so

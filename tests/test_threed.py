@@ -592,6 +592,22 @@ def test_make_ship_threed_ships_the_3d_runs_alone_under_both_folder_names(tiny_3
     assert {p: p.stat().st_mtime_ns for p in dest.rglob("*")} == before
 
 
+def test_a_scenario_collections_make_target_is_a_name_or_none():
+    """conf/ship.yaml names the make target that ships each collection (its MANIFEST says so); a
+    collection without one is shipped by the script alone; anything else is refused naming the key."""
+    from flock_torchrl.config.compose import app_config
+
+    spec = {"runs_dir": "runs", "experiment": "fast3d", "names": ["scenario-train3d"]}
+    for target in ("ship-threed", None):
+        cfg = app_config("ship", scenario_collections={"threed": {**spec, "target": target}})
+        assert cfg.scenario_collections["threed"]["target"] == target
+    assert "target" not in app_config("ship", scenario_collections={"threed": spec}).scenario_collections["threed"]
+    with pytest.raises(ConfigError, match=r"scenario_collections\.threed\.target: the make target"):
+        app_config("ship", scenario_collections={"threed": {**spec, "target": 3}})
+    with pytest.raises(ConfigError, match=r"scenario_collections\.threed: must hold runs_dir"):
+        app_config("ship", scenario_collections={"threed": {**spec, "made_by": "me"}})
+
+
 @pytest.mark.slow
 def test_ship_refuses_an_unknown_collection(tmp_path):
     from helpers import run_script

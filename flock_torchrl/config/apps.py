@@ -344,8 +344,8 @@ class ShipConfig(WorldApp):
     runs_dir: str = MISSING
     paper_experiment: str = MISSING
     collections: Dict[str, str] = field(default_factory=dict)  # experiment -> folder under <checkpoints>/<reading>/
-    # folder under <checkpoints>/<reading>/ -> {runs_dir, experiment, names}: runs of another scenario,
-    # whose folders are seed<k>__<one of names>; shipped alone, with ``only``
+    # folder under <checkpoints>/<reading>/ -> {runs_dir, experiment, names[, target]}: runs of another
+    # scenario, whose folders are seed<k>__<one of names>; shipped alone, with ``only`` (by ``make <target>``)
     scenario_collections: Dict[str, Any] = field(default_factory=dict)
     only: Optional[str] = None               # a key of scenario_collections: ship that one alone
 
@@ -359,8 +359,10 @@ class ShipConfig(WorldApp):
         for folder, spec in self.scenario_collections.items():
             key = f"scenario_collections.{folder}"
             folder_name(key, folder)
-            if not isinstance(spec, Mapping) or set(spec) != {"runs_dir", "experiment", "names"}:
-                reject(key, f"must hold runs_dir, experiment and names, got {spec!r}")
+            if not isinstance(spec, Mapping) or set(spec) - {"target"} != {"runs_dir", "experiment", "names"}:
+                reject(key, f"must hold runs_dir, experiment and names (and a make target or none), got {spec!r}")
+            if spec.get("target") is not None and not isinstance(spec["target"], str):
+                reject(f"{key}.target", f"the make target that ships it, or null; got {spec['target']!r}")
             folder_name(f"{key}.experiment", spec["experiment"])
             if not spec["names"] or any(not isinstance(n, str) or not n for n in spec["names"]):
                 reject(f"{key}.names", f"a list of run folders' names after seed<k>__, got {spec['names']!r}")

@@ -131,17 +131,20 @@ def ship_collection(plan: Shipment, dest: Path, reading: str, title: str, source
 
 
 def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, names: Sequence[str], dest: Path,
-                             log: Callable[[str], None] = print) -> list[Path]:
+                             log: Callable[[str], None] = print, target: str | None = None) -> list[Path]:
     """Export the finished runs ``<runs_dir>/<experiment>/<reading>/<policy>/seed<k>__<name>/last.pt``
     (``name`` one of ``names``: the scenario's overrides, e.g. ``scenario-train3d``) to
     ``<dest>/<policy>/seed<k>.pt`` with its ``MANIFEST.md``; two folders holding one policy's seed
-    are a conflict (:class:`CheckpointError`), found before the first file is written."""
+    are a conflict (:class:`CheckpointError`), found before the first file is written. The MANIFEST
+    names ``make <target>`` where a make target ships the collection (conf/ship.yaml)."""
     source = runs_dir / experiment / reading
     plan, conflicts = plan_collection(_finished_runs(source, log, names), dest, reading)
     if conflicts:
         raise CheckpointError(refusal(conflicts))
+    command = f"scripts/ship.py only={dest.name}"
+    made_by = f"`make {target}` ({command})" if target else f"`python {command}`"
     return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log,
-                           made_by=f"`make ship-threed` (scripts/ship.py only={dest.name})", publication=None)
+                           made_by=made_by, publication=None)
 
 
 def refusal(conflicts: list[str]) -> str:
