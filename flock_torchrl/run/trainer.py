@@ -210,8 +210,9 @@ class Training:
             self.logger.log_hparams(logger_hparams(self.resolved))
         if self.cfg.progress:  # the random frames (no update) are left out of its rate
             exp = self.cfg.experiment
+            random_frames = exp.init_random_frames if self.learner.off_policy else 0
             self.progress = Progress(exp.max_frames, self.counters, f"{self.cfg.policy.name} {label}",
-                                     exp.num_envs * self.steps, exp.init_random_frames * self.learner.off_policy)
+                                     exp.num_envs * self.steps, random_frames)
         self.members.open_logs(resumed)
 
     def _log_training(self, stats: dict[str, torch.Tensor]) -> None:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from .geometry import circular_mean, constant, length, relative_angle, stored, wrap
-# The laser's half of sensing lives in .laser; its names are sensing's too.
+# The laser's half of sensing lives in .laser (imported from there); these three helpers serve both halves.
 from .laser import pick, smallest, worlds_last
 
 # Numbers per piece of the observation and the critic state (section 2).
