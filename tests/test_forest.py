@@ -403,6 +403,6 @@ def test_frames_draw_each_worlds_own_obstacles():
     assert tuple(int(v) for v in frames[1][160, 160]) == (255, 255, 255)  # world 1: nothing there
     # A rollout's states carry the episode's field (no reset: the placed one).
     td = env.rollout(2, break_when_any_done=False, auto_reset=False, tensordict=env.current())
-    states = rollout_states(td, env_index=0)
+    states = rollout_states(td, env.cfg, env_index=0)
     assert states[0].circles.shape == (12, 3) and states[0].circles[0].tolist() == [40.0, 40.0, 4.0]
 

@@ -63,7 +63,7 @@ def test_rollout_states_stop_at_the_first_done():
     env = FlockingEnv("s1", num_envs=1, seed=0, max_steps=5, extras="physics")
     with torch.no_grad():
         rollout = env.rollout(20, goal_seeking_policy(), break_when_any_done=False)
-    states = rollout_states(rollout, 0)
+    states = rollout_states(rollout, env.cfg, 0)
     assert len(states) == 6  # the start and five steps, truncated at max_steps = 5
     assert np.allclose(states[1].position, rollout["next", "agents", "position"][0, 0].numpy())
 

@@ -22,6 +22,7 @@ from flock_torchrl.world.dynamics import action_to_command, clamp_altitude, upda
 from flock_torchrl.world.geometry import Obstacles, cast_rays_3d, distance_to_obstacles
 from flock_torchrl.world.instinct import repulsion
 from flock_torchrl.world.sensors import off_axis, planar_entries
+from flock_torchrl.world.space import Space
 
 # The plane lifted into space: every UAV, the goal and every obstacle at 10 m.
 LIFTED = {"dims": 3, "climb_max": 0.0, "laser_rings": [0.0], "laser_vertical": False, "spawn_height": 0.0,
@@ -168,10 +169,10 @@ def test_space_compiled_matches_eager():
 # ---------------------------------------------------------------------------- hand-computed answers
 def test_action_to_command_in_space():
     # a = (0, 1, 1): straight on at V = 3 m/s, climbing at gamma_max = 30 deg: (3 cos 30, 0, 3 sin 30).
-    command = action_to_command(torch.tensor([[0.0, 1.0, 1.0]]), torch.tensor([0.0]), math.pi / 6)
+    command = action_to_command(torch.tensor([[0.0, 1.0, 1.0]]), torch.tensor([0.0]), Space(climb_max=math.pi / 6))
     torch.testing.assert_close(command, torch.tensor([[3 * math.sqrt(3) / 2, 0.0, 1.5]]))
     # a0 = 1 turns by 90 deg; a2 = -1 dives.
-    command = action_to_command(torch.tensor([[1.0, -1.0, -1.0]]), torch.tensor([0.0]), math.pi / 6)
+    command = action_to_command(torch.tensor([[1.0, -1.0, -1.0]]), torch.tensor([0.0]), Space(climb_max=math.pi / 6))
     torch.testing.assert_close(command, torch.tensor([[0.0, math.sqrt(3) / 2, -0.5]]), atol=1e-6, rtol=0)
 
 
@@ -213,11 +214,11 @@ def test_rays_hit_finite_cylinders_boxes_and_spheres():
         assert idx[0, 0, 3].item() == 2 and d[0, 0, 3].item() == pytest.approx(expected, abs=1e-5)
     # Signed distances: 1 m above the cylinder's top edge at its axis; inside the box; 1 m under the sphere.
     points = torch.tensor([[[5.0, 0.0, 3.0], [0.0, 5.0, 1.0], [0.0, 0.0, 3.0]]])
-    d = distance_to_obstacles(points, obstacles)[0]
+    d = distance_to_obstacles(points, obstacles, Space())[0]
     assert d[0, 0].item() == pytest.approx(1.0) and d[1, 1].item() == pytest.approx(-1.0)
     assert d[2, 2].item() == pytest.approx(1.0)
     # A corner: 1 m beyond the cylinder's rim and 1 m above its top: sqrt(2).
-    d = distance_to_obstacles(torch.tensor([[[7.0, 0.0, 3.0]]]), obstacles)[0]
+    d = distance_to_obstacles(torch.tensor([[[7.0, 0.0, 3.0]]]), obstacles, Space())[0]
     assert d[0, 0].item() == pytest.approx(math.sqrt(2))
 
 
@@ -238,15 +239,15 @@ def test_the_tangential_term_leads_towards_the_goal_in_space():
     # A neighbour 1 m ahead (+x) within r0 = 5: v_r = 1 * (5 - 1) * (-1, 0, 0) = (-4, 0, 0). The goal
     # lies straight up and ahead, (10, 0, 10): its part orthogonal to v_r is (0, 0, 10), so v_t = (0, 0, 4).
     v = repulsion(torch.tensor([[[[1.0, 0.0, 0.0]]]]), torch.tensor([[[True]]]), torch.tensor([[[10.0, 0.0, 10.0]]]),
-                  1.0, 5.0)
+                  1.0, 5.0, space=Space())
     torch.testing.assert_close(v, torch.tensor([[[-4.0, 0.0, 4.0]]]))
     # Level goal: the 2-D answer, v_r turned by +-90 deg towards the goal (here +y).
     v = repulsion(torch.tensor([[[[1.0, 0.0, 0.0]]]]), torch.tensor([[[True]]]), torch.tensor([[[10.0, 3.0, 0.0]]]),
-                  1.0, 5.0)
+                  1.0, 5.0, space=Space())
     torch.testing.assert_close(v, torch.tensor([[[-4.0, -4.0, 0.0]]]) * torch.tensor([1.0, -1.0, 1.0]))
     # Without the tangential term only the radial push.
     v = repulsion(torch.tensor([[[[0.0, 0.0, -2.0]]]]), torch.tensor([[[True]]]), torch.tensor([[[10.0, 0.0, 0.0]]]),
-                  1.0, 5.0, tangential=False)
+                  1.0, 5.0, tangential=False, space=Space())
     torch.testing.assert_close(v, torch.tensor([[[0.0, 0.0, 3.0]]]))
 
 
@@ -256,28 +257,28 @@ def test_the_tapered_tangential_term_fades_on_the_line_of_the_push():
     head_on = torch.tensor([[[-10.0, 0.0, -0.012]]])
     ahead = (torch.tensor([[[[1.0, 0.0, 0.0]]]]), torch.tensor([[[True]]]))
     # Untapered (taper 0, the shipped checkpoints): |v_t| = |v_r| straight down, whatever 1.2 cm says.
-    torch.testing.assert_close(repulsion(*ahead, head_on, 1.0, 5.0), torch.tensor([[[-4.0, 0.0, -4.0]]]))
+    torch.testing.assert_close(repulsion(*ahead, head_on, 1.0, 5.0, space=Space()), torch.tensor([[[-4.0, 0.0, -4.0]]]))
     # Tapered by 15 deg: |v_t| = 4 * 0.012 / (sin 15 deg * 10.0000072) = 0.0185461, still downward.
     taper = math.pi / 12
     v_t = 4 * 0.012 / (math.sin(taper) * math.sqrt(100 + 0.012 ** 2))
-    torch.testing.assert_close(repulsion(*ahead, head_on, 1.0, 5.0, taper=taper),
+    torch.testing.assert_close(repulsion(*ahead, head_on, 1.0, 5.0, taper=taper, space=Space()),
                                torch.tensor([[[-4.0, 0.0, -v_t]]]), atol=1e-6, rtol=0)
     # A goal 1.2 cm *above* the line gives the mirror image: the push is continuous through the line.
-    above = repulsion(*ahead, head_on * torch.tensor([1.0, 1.0, -1.0]), 1.0, 5.0, taper=taper)
+    above = repulsion(*ahead, head_on * torch.tensor([1.0, 1.0, -1.0]), 1.0, 5.0, taper=taper, space=Space())
     torch.testing.assert_close(above, torch.tensor([[[-4.0, 0.0, v_t]]]), atol=1e-6, rtol=0)
     # On the line (the tie), no tangential part for any v_r, here a slanted one.
     slanted = torch.tensor([[[[1.0, 0.5, -2.0]]]])
-    radial = repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, tangential=False)
-    torch.testing.assert_close(repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, taper=taper), radial)
+    radial = repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, tangential=False, space=Space())
+    torch.testing.assert_close(repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, taper=taper, space=Space()), radial)
     # Outside the taper (the goal 90 deg off the line, (0, 10, 1)) the full length, as untapered:
     # v_t = 4 (0, 10, 1) / sqrt(101).
     side = torch.tensor([[[0.0, 10.0, 1.0]]])
     expected = torch.tensor([[[-4.0, 40.0 / math.sqrt(101), 4.0 / math.sqrt(101)]]])
     for t in (0.0, taper):
-        torch.testing.assert_close(repulsion(*ahead, side, 1.0, 5.0, taper=t), expected)
+        torch.testing.assert_close(repulsion(*ahead, side, 1.0, 5.0, taper=t, space=Space()), expected)
     # Level push and goal: section 3's planar term at full length, even inside the taper (the 2-D case).
     level = torch.tensor([[[-10.0, 0.01, 0.0]]])
-    torch.testing.assert_close(repulsion(*ahead, level, 1.0, 5.0, taper=taper), torch.tensor([[[-4.0, 4.0, 0.0]]]))
+    torch.testing.assert_close(repulsion(*ahead, level, 1.0, 5.0, taper=taper, space=Space()), torch.tensor([[[-4.0, 4.0, 0.0]]]))
 
 
 def test_the_vertical_beam_pair_reads_the_clearance_above_and_below():
@@ -293,7 +294,7 @@ def test_the_vertical_beam_pair_reads_the_clearance_above_and_below():
     for vertical, nearest, index in ((False, 4.0, None), (True, 2.0, 109)):
         laser = Laser(36, rings, vertical)
         for static_shapes in (False, True):
-            beams, _ = laser_scan(position, heading, wall, 36, 10.0, static_shapes, laser)
+            beams, _ = laser_scan(position, heading, wall, 36, 10.0, static_shapes, Space(laser=laser))
             assert beams.shape[-1] == laser.count == 108 + 2 * vertical
             # The +30 deg ring meets the underside 2 / sin 30 deg = 4 m away: twice the clearance.
             assert beams[0, 0, :108].min().item() == pytest.approx(4.0, abs=1e-5)
@@ -301,12 +302,12 @@ def test_the_vertical_beam_pair_reads_the_clearance_above_and_below():
             assert d[0, 0, 0].item() == pytest.approx(nearest, abs=1e-5)
         if vertical:  # straight up: 2 m; straight down: nothing (the ground is not an obstacle)
             assert at[0, 0, 0].item() == index and beams[0, 0, 108].item() == 10.0
-            slot = scan_observation(beams, 3, 10.0, (d, at), laser)[0, 0, :3]
+            slot = scan_observation(beams, 3, 10.0, (d, at), Space(laser=laser))[0, 0, :3]
             torch.testing.assert_close(slot, torch.tensor([0.2, 0.0, 0.5]))
             # The instinct's virtual UAV 2 m above pushes straight down: (5 - 2) (0, 0, -1).
-            alone = near_neighbours(position, heading, 5.0, math.pi / 2, climb=torch.zeros(1, 1))[0]
+            alone = near_neighbours(position, heading, 5.0, math.pi / 2, space=Space(climb=torch.zeros(1, 1)))[0]
             on, command = instinct_command(position, heading, torch.tensor([[0.0, 40.0, 2.0]]), beams, alone,
-                                           gain=1.0, r0=5.0, safe_distance=2.0, tangential=False, laser=laser)
+                                           gain=1.0, r0=5.0, safe_distance=2.0, tangential=False, space=Space(laser=laser))
             assert on.item() and command[0, 0].tolist() == pytest.approx([0.0, 0.0, -3.0], abs=1e-6)
 
 
@@ -410,14 +411,14 @@ def test_baseline_sensing_in_space_by_hand():
     scan[0, 0, 5] = 2.0
     ids = torch.full((1, 1, 8), -1)
     ids[0, 0, 5] = 0
-    view = nearest_hits(scan, ids, torch.zeros(1, 1), 1, laser=Laser(4, (0.0, math.pi / 6)))
+    view = nearest_hits(scan, ids, torch.zeros(1, 1), 1, space=Space(laser=Laser(4, (0.0, math.pi / 6))))
     torch.testing.assert_close(view.offset[0, 0, 0], torch.tensor([0.0, math.sqrt(3), 1.0]), atol=1e-6, rtol=0)
     torch.testing.assert_close(view.normal[0, 0, 0], -torch.tensor([0.0, math.sqrt(3), 1.0]) / 2, atol=1e-6, rtol=0)
     # A UAV 1 m straight above another, both climbing at 90 deg: each sees the other only if it is
     # ahead of it; the lower one sees the upper one (on axis), and is pushed down by it.
     position = torch.tensor([[[0.0, 0.0, 10.0], [0.0, 0.0, 11.0]]])
     seen = neighbour_view(position, torch.zeros(1, 2, 3), torch.zeros(1, 2), 5.0, math.pi / 4,
-                          climb=torch.full((1, 2), math.pi / 2))
+                          space=Space(climb=torch.full((1, 2), math.pi / 2)))
     assert seen.visible[0].tolist() == [[False, True], [False, False]]
     push = op_repulsion(seen.offset, seen.distance, seen.visible, 1.0, 5.0)
     torch.testing.assert_close(push[0, 0], torch.tensor([0.0, 0.0, -4.0]))

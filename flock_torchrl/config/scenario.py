@@ -168,11 +168,11 @@ class ScenarioConfig(Schema):
     @property
     def n_laser(self) -> int:
         """Laser beams in all: ``n_beams`` per ring (and the vertical pair, in 3-D)."""
-        return self.n_beams if self.laser is None else self.laser.count
+        return self.laser.count if self.dims == 3 else self.n_beams
 
     @property
     def laser(self) -> "Laser | None":
-        """The 3-D laser's beams (the sensors' switch to 3-D), ``None`` in 2-D."""
+        """The 3-D laser's beams (what :func:`~flock_torchrl.world.space.space_of` hands the sensors), ``None`` in 2-D."""
         if self.dims != 3:
             return None
         return Laser(self.n_beams, tuple(float(e) for e in self.laser_rings), bool(self.laser_vertical))

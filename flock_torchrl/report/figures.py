@@ -59,7 +59,7 @@ def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | o
         the figure.
     """
     cfg = env.cfg
-    states = rollout_states(rollout_td, env_index)
+    states = rollout_states(rollout_td, env.cfg, env_index)
     extent = extent or world_extent(cfg, states)
     if ax is None:
         fig = Figure(figsize=(5, 5), dpi=DPI)
@@ -97,7 +97,7 @@ def save_animation(rollout_td: Any, env: Any, path: str | os.PathLike, env_index
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
     height, width = image_size(size)
-    states = rollout_states(rollout_td, env_index)
+    states = rollout_states(rollout_td, env.cfg, env_index)
     extent = world_extent(env.cfg, states)
     idx = list(range(0, len(states), stride))
     if idx[-1] != len(states) - 1:

@@ -143,7 +143,7 @@ def episode_frame(path: str | os.PathLike, policy: str, scenario: str = "wall3d"
 
     handle = resolve(policy, reading)[0]
     rollout, env = _episode(handle, scenario, reading, seed)
-    states = rollout_states(rollout, 0)
+    states = rollout_states(rollout, env.cfg, 0)
     height, width = image_size(size)
     extent = world_extent(env.cfg, states)
     steps = [min(len(states) - 1, int(round(a * (len(states) - 1)))) for a in at]

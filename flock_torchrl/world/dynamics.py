@@ -8,18 +8,20 @@ import math
 import torch
 
 from .geometry import length
+from .space import Space
 
 
-def action_to_command(action: torch.Tensor, heading: torch.Tensor, climb_max: float = 0.0) -> torch.Tensor:
+def action_to_command(action: torch.Tensor, heading: torch.Tensor, space: Space | None = None) -> torch.Tensor:
     """Velocity command from a policy action (Eq. 19-20).
 
-    ``dphi = a0 pi/2``, ``V = a1 + 2``, command ``V (cos(phi + dphi), sin(phi + dphi))``. A 3-D
-    action ``[a0, a1, a2]`` also commands the flight-path angle ``gamma_c = a2 climb_max``:
-    ``V (cos gamma_c cos(phi + dphi), cos gamma_c sin(phi + dphi), sin gamma_c)`` (section 11;
-    with ``climb_max = 0`` the horizontal part is the 2-D command bit for bit).
+    ``dphi = a0 pi/2``, ``V = a1 + 2``, command ``V (cos(phi + dphi), sin(phi + dphi))``. In
+    ``space`` the action ``[a0, a1, a2]`` also commands the flight-path angle ``gamma_c = a2
+    gamma_max`` (``space.climb_max``): ``V (cos gamma_c cos(phi + dphi), cos gamma_c sin(phi +
+    dphi), sin gamma_c)`` (section 11; with ``gamma_max = 0`` the horizontal part is the 2-D
+    command bit for bit).
 
     Args:
-        action: ``[..., 2]`` (or ``[..., 3]``) in ``[-1, 1]``.
+        action: ``[..., 2]`` (in space ``[..., 3]``) in ``[-1, 1]``.
         heading: ``[...]`` current heading ``phi``.
 
     Returns:
@@ -27,9 +29,9 @@ def action_to_command(action: torch.Tensor, heading: torch.Tensor, climb_max: fl
     """
     direction = heading + action[..., 0] * (math.pi / 2)
     speed = action[..., 1] + 2.0
-    if action.shape[-1] == 2:
+    if space is None:
         return torch.stack((speed * torch.cos(direction), speed * torch.sin(direction)), -1)
-    climb = action[..., 2] * climb_max
+    climb = action[..., 2] * space.climb_max
     horizontal = speed * torch.cos(climb)
     return torch.stack((horizontal * torch.cos(direction), horizontal * torch.sin(direction),
                         speed * torch.sin(climb)), -1)

@@ -61,7 +61,7 @@ def env_state(env: Any, env_index: int = 0) -> WorldState:
     """The current state of env ``env_index`` of a FlockingEnv."""
     world = env.world[env_index]
     position, goal = _np(world["position"]), _np(world["goal"])
-    if position.shape[-1] == 3:
+    if env.cfg.dims == 3:
         return WorldState(position[:, :2], _np(world["heading"]), goal[:2], _np(world["moving_position"]),
                           _np(world["drawn_circles"]), _np(world["drawn_rectangles"]), position[:, 2],
                           float(goal[2]), _np(world["drawn_spheres"]))
@@ -69,9 +69,9 @@ def env_state(env: Any, env_index: int = 0) -> WorldState:
                       _np(world["moving_position"]), _np(world["drawn_circles"]), _np(world["drawn_rectangles"]))
 
 
-def rollout_states(rollout: Any, env_index: int = 0) -> list[WorldState]:
-    """The states of one env along a rollout TensorDict (``[B, T]`` or ``[T]``), from the start
-    to its first ``done``: ``T_done + 1`` states."""
+def rollout_states(rollout: Any, cfg: Any, env_index: int = 0) -> list[WorldState]:
+    """The states of one env along a rollout TensorDict (``[B, T]`` or ``[T]``) of scenario ``cfg``,
+    from the start to its first ``done``: ``T_done + 1`` states."""
     td = rollout[env_index] if rollout.batch_dims == 2 else rollout
     done = td["next", "done"].reshape(-1)
     last = int(done.nonzero()[0]) if bool(done.any()) else done.numel() - 1
@@ -90,7 +90,7 @@ def rollout_states(rollout: Any, env_index: int = 0) -> list[WorldState]:
     # Drawn obstacles stay put for the episode: its first step's.
     drawn = {name: _np(td["obstacles", f"drawn_{name}"][0]) for name in ("circles", "rectangles", "spheres")
              if ("obstacles", f"drawn_{name}") in keys}
-    if position.shape[-1] == 3:  # 3-D: the top view's positions, and the altitudes apart
+    if cfg.dims == 3:  # the top view's positions, and the altitudes apart
         return [WorldState(_np(position[t, :, :2]), _np(heading[t]), _np(goal[:2]), _np(moving[t]), **drawn,
                            altitude=_np(position[t, :, 2]), goal_altitude=float(goal[2]))
                 for t in range(position.shape[0])]

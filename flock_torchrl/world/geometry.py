@@ -25,6 +25,8 @@ from typing import Sequence
 
 import torch
 
+from .space import Space
+
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 
@@ -73,12 +75,11 @@ def relative_angle(vec: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
 
 
 def length(vec: torch.Tensor) -> torch.Tensor:
-    """Euclidean length over the last dimension (2 or 3). A 3-vector with a zero vertical
-    component gets exactly the length of its horizontal part, as the 2-D world computes it."""
-    if vec.shape[-1] == 2:
-        return torch.linalg.vector_norm(vec, dim=-1)
-    return torch.where(vec[..., 2] == 0, torch.linalg.vector_norm(vec[..., :2], dim=-1),
-                       torch.linalg.vector_norm(vec, dim=-1))
+    """Euclidean length over the last dimension (2 or 3), one formula for both: where the
+    components after the second are all zero (always, for a 2-vector) it is the length of the
+    first two, as the plane computes it, so a level 3-vector gets the plane's length bit for bit."""
+    flat = torch.linalg.vector_norm(vec[..., :2], dim=-1)
+    return torch.where((vec[..., 2:] == 0).all(-1), flat, torch.linalg.vector_norm(vec, dim=-1))
 
 
 def circular_mean(angles: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
@@ -100,25 +101,21 @@ class Obstacles:
     rectangles: torch.Tensor
     spheres: torch.Tensor | None = None  # 3-D only (``None``: a 2-D world)
 
-    @property
-    def count(self) -> int:
-        return self.circles.shape[-2] + self.rectangles.shape[-2] + (
-            self.spheres.shape[-2] if self.spheres is not None else 0)
+    def tensors(self) -> list[torch.Tensor]:
+        """The obstacle tensors held, in the laser's index order."""
+        return [t for t in (self.circles, self.rectangles, self.spheres) if t is not None]
 
     @property
-    def is_3d(self) -> bool:
-        return self.spheres is not None
+    def count(self) -> int:
+        return sum(t.shape[-2] for t in self.tensors())
 
     def __getitem__(self, index) -> "Obstacles":
         """The obstacles of the worlds ``index`` (batch dimension first)."""
-        return Obstacles(self.circles[index], self.rectangles[index],
-                         None if self.spheres is None else self.spheres[index])
+        return Obstacles(*(t[index] for t in self.tensors()))
 
     def footprints(self) -> "Obstacles":
         """The 2-D obstacles that cover these from above: a cylinder's or a sphere's circle, a box's
-        rectangle (circles first, spheres after the cylinders). A 2-D world's are itself."""
-        if self.spheres is None:
-            return self
+        rectangle (circles first, spheres after the cylinders). For obstacles in space only."""
         spheres = torch.cat((self.spheres[..., :2], self.spheres[..., 3:]), -1)
         return Obstacles(torch.cat((self.circles[..., :3], spheres), -2), self.rectangles[..., :4])
 
@@ -452,11 +449,11 @@ def distance_to_rectangles(points: torch.Tensor, rects: torch.Tensor) -> torch.T
     return outside + inside
 
 
-def distance_to_obstacles(points: torch.Tensor, obstacles: Obstacles) -> torch.Tensor:
-    """Signed distance to every obstacle surface, ``[B, N, C + R]`` (circles first; in 3-D
+def distance_to_obstacles(points: torch.Tensor, obstacles: Obstacles, space: Space | None = None) -> torch.Tensor:
+    """Signed distance to every obstacle surface, ``[B, N, C + R]`` (circles first; in ``space``
     ``[B, N, C + R + S]``, cylinders, boxes, spheres)."""
     parts = []
-    if obstacles.is_3d:
+    if space is not None:
         for tensors, distance in ((obstacles.circles, distance_to_cylinders), (obstacles.rectangles, distance_to_boxes),
                                   (obstacles.spheres, distance_to_spheres)):
             if tensors.shape[-2] > 0:
@@ -471,9 +468,10 @@ def distance_to_obstacles(points: torch.Tensor, obstacles: Obstacles) -> torch.T
     return torch.cat(parts, -1)
 
 
-def nearest_obstacle_distance(points: torch.Tensor, obstacles: Obstacles) -> torch.Tensor:
+def nearest_obstacle_distance(points: torch.Tensor, obstacles: Obstacles, space: Space | None = None
+                              ) -> torch.Tensor:
     """True distance from each point to the nearest obstacle surface, ``[B, N]`` (``inf`` if none)."""
-    d = distance_to_obstacles(points, obstacles)
+    d = distance_to_obstacles(points, obstacles, space)
     if d.shape[-1] == 0:
         return torch.full(points.shape[:-1], math.inf, dtype=points.dtype, device=points.device)
     return d.amin(-1)

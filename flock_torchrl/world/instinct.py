@@ -6,10 +6,11 @@ import math
 
 import torch
 
-from ..config.scenario import INSTINCT_MODES, Laser
+from ..config.scenario import INSTINCT_MODES
 from .geometry import length, stored
 from .laser import beam_return_offset
 from .sensors import Neighbours
+from .space import Space
 
 
 def rotate_90(vec: torch.Tensor) -> torch.Tensor:
@@ -18,7 +19,7 @@ def rotate_90(vec: torch.Tensor) -> torch.Tensor:
 
 
 def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor, gain: float, r0: float,
-              tangential: bool = True, taper: float = 0.0) -> torch.Tensor:
+              tangential: bool = True, taper: float = 0.0, space: Space | None = None) -> torch.Tensor:
     """Summed repulsion velocity of Eq. 26-29.
 
     For each counted neighbour j (``active`` and ``0 < |p_ij| < r0``):
@@ -30,24 +31,26 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
         active: ``[B, N, M]`` which of the ``M`` candidates exist (visible UAVs, virtual UAV).
         to_goal: ``[B, N, 2]`` ``p_g - p_i``.
         tangential: include ``v_t`` (Eq. 28); Policy5-G drops it.
-        taper: 3-D only, the angle (rad) within which ``v_t`` fades to 0 about ``v_r``'s line (section 11).
+        taper: in space, the angle (rad) within which ``v_t`` fades to 0 about ``v_r``'s line (section 11).
+        space: in space (section 11) the offsets and ``to_goal`` have three components.
 
     Returns:
         ``[B, N, 2]`` ``v_rep_i = sum_j (v_r_ij + v_t_ij)`` (Eq. 29).
     """
     dx, dy = offset[..., 0].contiguous(), offset[..., 1].contiguous()
     goal = to_goal[..., None].unbind(-2)  # per component, [B, N, 1]
-    if offset.shape[-1] == 3:  # 3-D (section 11)
+    if space is not None:  # section 11
         dz = offset[..., 2].contiguous()
         return torch.stack(repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy + dz * dz), active, goal, gain, r0,
-                                        tangential, dz, taper=taper), -1)
+                                        tangential, space, dz, taper=taper), -1)
     vx, vy = repulsion_xy(dx, dy, torch.sqrt(dx * dx + dy * dy), active, goal, gain, r0, tangential)
     return torch.stack((vx, vy), -1)
 
 
 def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active: torch.Tensor,
                  to_goal: tuple[torch.Tensor, ...], gain: float, r0: float, tangential: bool = True,
-                 dz: torch.Tensor | None = None, dim: int = -1, taper: float = 0.0) -> tuple[torch.Tensor, ...]:
+                 space: Space | None = None, dz: torch.Tensor | None = None, dim: int = -1, taper: float = 0.0
+                 ) -> tuple[torch.Tensor, ...]:
     """Eq. 26-29 (:func:`repulsion`) on the offset's components ``dx, dy`` and length ``dist``
     (each ``[B, N, M]``), summed over ``M``: ``(v_x, v_y)``, each ``[B, N]``. The one home of
     the repulsion's formula: :func:`repulsion` and :func:`instinct_command` call it.
@@ -55,7 +58,7 @@ def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active:
     ``to_goal``: the components of ``p_g - p_i``, each broadcasting against ``dx`` (``[B, N, 1]``).
     ``dim``: the axis of the neighbours, summed over (0 for the compiled step's ``[M, N, B]``).
 
-    In 3-D (``dz`` given, ``to_goal`` of three components; section 11): ``(v_x, v_y, v_z)``, with ``v_t``
+    In ``space`` (with the offsets' ``dz``, ``to_goal`` of three components; section 11): ``(v_x, v_y, v_z)``, with ``v_t``
     along the goal's component orthogonal to ``v_r`` (:func:`tangential_3d`, faded within ``taper`` of
     ``v_r``'s line); where ``v_r`` and the goal are both level it is the 2-D ``v_t``, computed as in 2-D."""
     counted = active & (dist > 0) & (dist < r0)
@@ -63,7 +66,7 @@ def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active:
     scale = torch.where(counted, gain * (r0 - dist) / torch.where(counted, dist, torch.ones_like(dist)),
                         torch.zeros_like(dist))
     rx, ry = -scale * dx, -scale * dy
-    if dz is not None:
+    if space is not None:
         rz = -scale * dz
         if not tangential:
             return rx.sum(dim), ry.sum(dim), rz.sum(dim)
@@ -110,7 +113,7 @@ def tangential_3d(rx: torch.Tensor, ry: torch.Tensor, rz: torch.Tensor, to_goal:
 def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                    neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float, tangential: bool,
                    shortest: tuple[torch.Tensor, torch.Tensor] | None = None, pushing: torch.Tensor | None = None,
-                   laser: Laser | None = None, taper: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                   space: Space | None = None, taper: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The instinct's switch and its two parts, from what the UAV senses (specification section 3).
 
     The UAV switches to repulsion when ``min(d_uav1, d_scan1) <= d_safe``; the repulsion sums
@@ -122,30 +125,30 @@ def instinct_parts(position: torch.Tensor, heading: torch.Tensor, goal: torch.Te
         shortest: ``shortest_beams(beams, k)`` if already known.
         pushing: ``[B, N, M]``, the camera neighbours that push (default: every visible one; the
             switch always reads every visible one). Variants beyond the paper narrow it.
-        laser: 3-D (section 11): the laser's beams; positions, goal and pushes are then 3-D.
-        taper: 3-D, the tangential term's taper (:func:`tangential_3d`).
+        space: section 11, its ``laser``'s beams; positions, goal and pushes are then 3-D.
+        taper: in space, the tangential term's taper (:func:`tangential_3d`).
 
     Returns:
         ``(triggered [B, N] bool, uav_part [B, N, 2], obstacle_part [B, N, 2])``: the pushes of
         the UAVs and of the virtual UAV on the obstacle (not yet summed or clipped).
     """
-    d_scan1, wall_offset = beam_return_offset(beams, heading, shortest, laser)
+    d_scan1, wall_offset = beam_return_offset(beams, heading, shortest, space)
     to_goal = stored(goal[:, None, :] - position)
     uav = repulsion_xy(neighbours.dx, neighbours.dy, neighbours.distance,
                        neighbours.visible if pushing is None else pushing,
                        tuple(neighbours.against_pairs(g) for g in to_goal.unbind(-1)), gain, r0, tangential,
-                       neighbours.dz, neighbours.pair_dim, taper)
+                       neighbours.space, neighbours.dz, neighbours.pair_dim, taper)
     uav = tuple(neighbours.per_uav(u) for u in uav)
     wall = repulsion_xy(wall_offset[..., 0, None], wall_offset[..., 1, None], d_scan1[..., None],
                         torch.ones_like(d_scan1[..., None], dtype=torch.bool), to_goal[..., None].unbind(-2), gain,
-                        r0, tangential, None if laser is None else wall_offset[..., 2, None], taper=taper)
+                        r0, tangential, space, None if space is None else wall_offset[..., 2, None], taper=taper)
     triggered = torch.minimum(neighbours.nearest_distance(), d_scan1) <= safe_distance
     return triggered, torch.stack(uav, -1), torch.stack(wall, -1)
 
 
 def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading: torch.Tensor, gain: float,
                   r0: float, safe_distance: float, shortest: tuple[torch.Tensor, torch.Tensor] | None = None,
-                  cap: float | None = None, laser: Laser | None = None) -> torch.Tensor:
+                  cap: float | None = None, space: Space | None = None) -> torch.Tensor:
     """The UAVs' push ``uav [B, N, 2]`` of :func:`instinct_parts` under an instinct mode.
 
     - ``paper``: unchanged (Eq. 29).
@@ -163,7 +166,7 @@ def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading:
         norm = length(uav)[..., None]
         return uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
     if mode == "no_push_in":
-        d_scan1, wall = beam_return_offset(beams, heading, shortest, laser)
+        d_scan1, wall = beam_return_offset(beams, heading, shortest, space)
         seen = (d_scan1 > 0) & (d_scan1 < r0)
         normal = -wall / d_scan1.clamp_min(1e-12)[..., None]  # outward: from the return point to the UAV
         inward = (uav * normal).sum(-1, keepdim=True).clamp_max(0.0)
@@ -174,14 +177,14 @@ def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading:
 def instinct_command(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, beams: torch.Tensor,
                      neighbours: Neighbours, *, gain: float, r0: float, safe_distance: float,
                      tangential: bool, shortest: tuple[torch.Tensor, torch.Tensor] | None = None,
-                     mode: str = "paper", laser: Laser | None = None, taper: float = 0.0
+                     mode: str = "paper", space: Space | None = None, taper: float = 0.0
                      ) -> tuple[torch.Tensor, torch.Tensor]:
     """The instinct's switch and command (:func:`instinct_parts`, the UAVs' part under
     :func:`hold_in_crowd`'s ``mode``, summed): ``(triggered [B, N] bool, command [B, N, 2])``,
     the command not yet clipped."""
     triggered, uav, obstacle = instinct_parts(position, heading, goal, beams, neighbours, gain=gain, r0=r0,
                                               safe_distance=safe_distance, tangential=tangential, shortest=shortest,
-                                              laser=laser, taper=taper)
+                                              space=space, taper=taper)
     uav = hold_in_crowd(uav, mode, beams=beams, heading=heading, gain=gain, r0=r0, safe_distance=safe_distance,
-                        shortest=shortest, laser=laser)
+                        shortest=shortest, space=space)
     return triggered, uav + obstacle

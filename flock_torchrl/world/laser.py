@@ -10,6 +10,7 @@ import torch
 
 from ..config.scenario import Laser
 from .geometry import Obstacles, cast_rays_3d, cast_rays_along, cast_rays_worlds_last, constant, wrap
+from .space import Space
 
 
 def beam_offsets(n_beams: int, device=None, dtype=torch.float32) -> torch.Tensor:
@@ -60,7 +61,7 @@ def beam_azimuths(laser: Laser, index: torch.Tensor, like: torch.Tensor) -> torc
 
 
 def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacles, n_beams: int,
-               max_range: float, static_shapes: bool = False, laser: Laser | None = None
+               max_range: float, static_shapes: bool = False, space: Space | None = None
                ) -> tuple[torch.Tensor, torch.Tensor]:
     """All laser beams of every UAV.
 
@@ -69,14 +70,14 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         static_shapes: cast every beam at every obstacle, the worlds innermost in memory (in 2-D
             :func:`~.geometry.cast_rays_worlds_last`; the results are ``[B, N, K]`` views of
             ``[K, N, B]`` tensors, which :func:`shortest_beams` reads with ``worlds_last``).
-        laser: 3-D only, the laser's rings and vertical pair (section 11): ``n_beams`` beams on each ring.
+        space: section 11; its ``laser``'s rings and vertical pair, ``n_beams`` beams on each ring.
 
     Returns:
         ``(distance [B, N, n_beams], obstacle index [B, N, n_beams])``; beam ``k`` points at
         ``heading + k * 360/n_beams deg``; distances ``min(hit, max_range)``, 0 inside an obstacle.
-        In 3-D ``[B, N, laser.count]``, beam ``(r, k)`` at index ``r n_beams + k``, then the vertical pair.
+        In space ``[B, N, laser.count]``, beam ``(r, k)`` at index ``r n_beams + k``, then the vertical pair.
     """
-    if laser is None and static_shapes:
+    if space is None and static_shapes:
         h = worlds_last(heading)                                      # [N, B]
         cos_o, sin_o = (constant(v, h)[:, None, None] for v in beam_unit_table(n_beams))  # [K, 1, 1]
         cos_h, sin_h = torch.cos(h), torch.sin(h)
@@ -85,9 +86,9 @@ def laser_scan(position: torch.Tensor, heading: torch.Tensor, obstacles: Obstacl
         distance, index = cast_rays_worlds_last(worlds_last(position[..., 0]), worlds_last(position[..., 1]),
                                                 dx, dy, obstacles, max_range)
         return distance.permute(2, 1, 0), index.permute(2, 1, 0)
-    if laser is None:
+    if space is None:
         return cast_rays_along(position, beam_directions(heading, n_beams), obstacles, max_range)
-    level = beam_directions(heading, n_beams)
+    laser, level = space.laser, beam_directions(heading, n_beams)
     horizontal = level.repeat(1, 1, len(laser.rings), 1)
     if laser.vertical:  # the pair's horizontal part is multiplied by cos_e = 0: any unit vector will do
         horizontal = torch.cat((horizontal, level[..., :1, :].expand(*level.shape[:-2], 2, 2)), -2)
@@ -159,7 +160,7 @@ def shortest_beams(beams: torch.Tensor, n: int, worlds_last: bool = False) -> tu
 
 
 def scan_observation(beams: torch.Tensor, n: int, max_range: float,
-                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None, laser: Laser | None = None
+                     shortest: tuple[torch.Tensor, torch.Tensor] | None = None, space: Space | None = None
                      ) -> torch.Tensor:
     """``o_scan`` (Eq. 16): ``[d_k / d_max^scan, alpha_k / pi]`` for the ``n`` shortest beams.
 
@@ -167,37 +168,37 @@ def scan_observation(beams: torch.Tensor, n: int, max_range: float,
         shortest: :func:`shortest_beams` of ``beams`` if already known (at least ``n`` of them).
 
     Returns:
-        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``; with ``laser`` (3-D,
-        section 11) ``[B, N, 3 n]``, ``(d_k, alpha_k, e_k / pi)`` with ``e_k`` the beam's elevation
+        ``[B, N, 2 n]`` interleaved ``(d_1, alpha_1, d_2, alpha_2, ...)``; in ``space`` (its
+        ``laser``; section 11) ``[B, N, 3 n]``, ``(d_k, alpha_k, e_k / pi)`` with ``e_k`` the beam's elevation
         (the vertical pair's: ``-+pi/2``, azimuth 0).
     """
     dist, idx = shortest if shortest is not None else shortest_beams(beams, n)
     dist, idx = dist[..., :n], idx[..., :n]
-    if laser is None:
+    if space is None:
         alpha = wrap(beam_offsets(beams.shape[-1], beams.device, beams.dtype))[idx]
         return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi), -1).flatten(-2)
-    alpha = wrap(beam_azimuths(laser, idx, beams))
-    elevation = constant(laser.elevations(), beams)[idx]
+    alpha = wrap(beam_azimuths(space.laser, idx, beams))
+    elevation = constant(space.laser.elevations(), beams)[idx]
     return torch.stack((dist.clamp(0.0, max_range) / max_range, alpha / math.pi, elevation / math.pi),
                        -1).flatten(-2)
 
 
 def beam_return_offset(beams: torch.Tensor, heading: torch.Tensor,
-                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None, laser: Laser | None = None
+                       shortest: tuple[torch.Tensor, torch.Tensor] | None = None, space: Space | None = None
                        ) -> tuple[torch.Tensor, torch.Tensor]:
     """Shortest beam's length ``d_scan1`` ``[B, N]`` and its return point minus the UAV's position ``[B, N, 2]``.
 
     Args:
         shortest: :func:`shortest_beams` of ``beams`` if already known.
-        laser: 3-D (section 11): the laser's beams; the offset is then ``[B, N, 3]``.
+        space: section 11, its ``laser``'s beams; the offset is then ``[B, N, 3]``.
     """
     d, idx = shortest if shortest is not None else shortest_beams(beams, 1)
     d, idx = d[..., :1], idx[..., :1]
-    if laser is None:
+    if space is None:
         angle = heading + beam_offsets(beams.shape[-1], beams.device, beams.dtype)[idx[..., 0]]
         return d[..., 0], d * torch.stack((torch.cos(angle), torch.sin(angle)), -1)
-    angle = heading + beam_azimuths(laser, idx[..., 0], beams)
-    cos_e, sin_e = (t[idx[..., 0]] for t in ring_tables(laser, beams))
+    angle = heading + beam_azimuths(space.laser, idx[..., 0], beams)
+    cos_e, sin_e = (t[idx[..., 0]] for t in ring_tables(space.laser, beams))
     return d[..., 0], d * torch.stack((cos_e * torch.cos(angle), cos_e * torch.sin(angle), sin_e), -1)
 
 

@@ -15,6 +15,7 @@ import torch
 from .geometry import circular_mean, constant, length, relative_angle, stored, wrap
 # The laser's half of sensing lives in .laser (imported from there); these three helpers serve both halves.
 from .laser import pick, smallest, worlds_last
+from .space import Space
 
 # Numbers per piece of the observation and the critic state (section 2).
 GOAL_SIZE = 2     # o_g: [min(d_g / d_s, 1), alpha_g / pi]
@@ -76,35 +77,36 @@ def off_axis(alpha: torch.Tensor, beta: torch.Tensor, climb: torch.Tensor) -> to
     return torch.where((beta == 0) & (climb == 0), alpha.abs(), theta)
 
 
-def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, climb: torch.Tensor | None = None
+def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, space: Space | None = None
                ) -> tuple[torch.Tensor, ...]:
     """The goal as each UAV sees it: distance ``d_g`` and angle ``alpha_g`` relative to the
     heading (Eq. 14-15 before normalising), each ``[B, N]``, for a ``goal [B, 2]``.
 
-    In 3-D (``goal [B, 3]``, ``climb [B, N]``; section 11): ``(d_g, alpha_g, beta_g, theta_g)``, the
-    3-D distance, azimuth, elevation and off-axis angle (what the reward's angle term reads)."""
+    In ``space`` (``goal [B, 3]``, the flight-path angles ``space.climb [B, N]``; section 11):
+    ``(d_g, alpha_g, beta_g, theta_g)``, the 3-D distance, azimuth, elevation and off-axis angle
+    (what the reward's angle term reads)."""
     to_goal = stored(goal[:, None, :] - position)
-    if climb is None:
+    if space is None:
         return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
     alpha = relative_angle(to_goal, heading)
     beta = elevation_of(to_goal[..., 0], to_goal[..., 1], to_goal[..., 2])
-    return length(to_goal), alpha, beta, off_axis(alpha, beta, climb)
+    return length(to_goal), alpha, beta, off_axis(alpha, beta, space.climb)
 
 
 def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, goal_scale: float,
-                     polar: tuple[torch.Tensor, ...] | None = None, climb: torch.Tensor | None = None
+                     polar: tuple[torch.Tensor, ...] | None = None, space: Space | None = None
                      ) -> torch.Tensor:
     """``o_g = [min(d_g / d_s, 1), alpha_g / pi]`` (Eq. 14-15, erratum: divide by d_s).
 
     Args:
-        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``; in 3-D
-        (``climb`` given, section 11) ``[min(d_g / d_s, 1), alpha_g / pi, beta_g / pi]``.
+        goal: ``[B, 2]``; polar: :func:`goal_polar` if already known. Returns ``[B, N, 2]``; in
+        ``space`` (section 11) ``[min(d_g / d_s, 1), alpha_g / pi, beta_g / pi]``.
     """
-    polar = polar if polar is not None else goal_polar(position, heading, goal, climb)
+    polar = polar if polar is not None else goal_polar(position, heading, goal, space)
     d, alpha = polar[0], polar[1]
     # Stacked outermost and viewed as [B, N, k] (here and in s_c): compiled, the loop computing
     # the pieces then writes each one whole; interleaved writes keep it from vectorising its atan2.
-    parts = ((d / goal_scale).clamp_max(1.0), alpha / math.pi) + (() if climb is None else (polar[2] / math.pi,))
+    parts = ((d / goal_scale).clamp_max(1.0), alpha / math.pi) + (() if space is None else (polar[2] / math.pi,))
     return torch.stack(parts, 0).movedim(0, -1)
 
 
@@ -127,7 +129,8 @@ class Neighbours:
     dx: torch.Tensor
     dy: torch.Tensor
     valid: torch.Tensor | None = None  # packed (near_neighbours): which of the M entries hold a UAV
-    # 3-D only (section 11): the vertical offset, the elevation, gamma_i - gamma_j, the off-axis angle.
+    space: Space | None = None  # measured in space (section 11): the entries below are then given
+    # The vertical offset, the elevation, gamma_i - gamma_j, the off-axis angle.
     dz: torch.Tensor | None = None
     elevation: torch.Tensor | None = None
     climb_difference: torch.Tensor | None = None
@@ -145,11 +148,11 @@ class Neighbours:
     @property
     def cone_angle(self) -> torch.Tensor:
         """The angle the field of view bounds: ``|bearing|`` in 2-D, the off-axis angle in 3-D."""
-        return self.bearing if self.dz is None else self.view_angle
+        return self.bearing if self.space is None else self.view_angle
 
     def offsets(self, heading: torch.Tensor | None = None) -> torch.Tensor:
         """Measured ``p_j - p_i`` in the world frame, ``[B, N, N, 2]`` (3-D: ``[B, N, N, 3]``)."""
-        if self.dz is not None:
+        if self.space is not None:
             return torch.stack((self.dx, self.dy, self.dz), -1)
         return torch.stack((self.dx, self.dy), -1)
 
@@ -182,19 +185,19 @@ def visibility(distance: torch.Tensor, rel_bearing: torch.Tensor, camera_range: 
 
 
 def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, heading_j: torch.Tensor,
-                  dz: torch.Tensor | None = None, climb_i: torch.Tensor | None = None,
+                  space: Space | None = None, dz: torch.Tensor | None = None, climb_i: torch.Tensor | None = None,
                   climb_j: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """What UAV i's camera measures of UAV j at offset ``p_j - p_i = (dx, dy)`` (section 2, Eq. 17
     before normalising): ``distance``, ``bearing`` relative to i's heading and ``heading_difference``
-    ``wrap(phi_i - phi_j)``, all broadcast to the offsets' shape. In space (``dz`` and the flight-path
-    angles given, section 11) the distance is 3-D, and the ``elevation``, ``climb_difference``
+    ``wrap(phi_i - phi_j)``, all broadcast to the offsets' shape. In ``space`` (with ``dz`` and the
+    flight-path angles of i and j in the offsets' layout; section 11) the distance is 3-D, and the ``elevation``, ``climb_difference``
     ``gamma_i - gamma_j`` and ``view_angle`` (the off-axis angle of j from i's direction of flight)
     join them; with ``dz = 0`` and level flight the first three are the plane's bit for bit."""
     bearing = wrap(torch.atan2(dy, dx) - heading_i)
     squared = dx * dx + dy * dy
-    out = {"distance": torch.sqrt(squared if dz is None else squared + dz * dz), "bearing": bearing,
+    out = {"distance": torch.sqrt(squared if space is None else squared + dz * dz), "bearing": bearing,
            "heading_difference": wrap(heading_i - heading_j)}
-    if dz is not None:
+    if space is not None:
         elevation = elevation_of(dx, dy, dz)
         out.update(elevation=elevation, climb_difference=climb_i - climb_j,
                    view_angle=off_axis(bearing, elevation, climb_i))
@@ -203,14 +206,15 @@ def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, h
 
 def measured(pairs: dict[str, torch.Tensor], dx: torch.Tensor, dy: torch.Tensor, dz: torch.Tensor | None,
              camera_range: float, half_fov: float, others: torch.Tensor | None, valid: torch.Tensor | None = None,
-             pair_dim: int = -1, shape: tuple[int, ...] | None = None) -> Neighbours:
+             pair_dim: int = -1, shape: tuple[int, ...] | None = None, space: Space | None = None) -> Neighbours:
     """The :class:`Neighbours` of :func:`measure_pairs`' ``pairs``, each visible as :func:`visibility`
     says of its cone angle (``others``: which entries are other UAVs); measured on rows, ``shape``
     views them as the layout's. ``valid``, ``pair_dim``: the layout's (:class:`Neighbours`)."""
-    visible = visibility(pairs["distance"], pairs.get("view_angle", pairs["bearing"]), camera_range, half_fov, others)
+    cone = pairs["bearing"] if space is None else pairs["view_angle"]
+    visible = visibility(pairs["distance"], cone, camera_range, half_fov, others)
     if shape is not None:
         pairs, visible = {key: value.view(shape) for key, value in pairs.items()}, visible.view(shape)
-    return Neighbours(visible=visible, dx=dx, dy=dy, dz=dz, valid=valid, pair_dim=pair_dim, **pairs)
+    return Neighbours(visible=visible, dx=dx, dy=dy, dz=dz, valid=valid, pair_dim=pair_dim, space=space, **pairs)
 
 
 def observe_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float
@@ -242,7 +246,7 @@ class NearPairs:
 
 
 def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
-                    static_shapes: bool = False, climb: torch.Tensor | None = None, worlds_last: bool = False
+                    static_shapes: bool = False, space: Space | None = None, worlds_last: bool = False
                     ) -> tuple[Neighbours, NearPairs, torch.Tensor]:
     """:func:`observe_neighbours` for the pairs that can matter: only a UAV closer than
     ``camera_range`` can be seen or push back (the repulsion's ``r0`` is the camera's range).
@@ -258,7 +262,7 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     pair is kept (``M = N``). With ``static_shapes`` every pair is kept, always: the packing
     has data-dependent shapes, which ``torch.compile(fullgraph=True)`` cannot trace.
 
-    In 3-D (``position [B, N, 3]``, ``climb [B, N]``; section 11) the distances are 3-D, the
+    In ``space`` (``position [B, N, 3]``, ``space.climb [B, N]``; section 11) the distances are 3-D, the
     camera a cone about the direction of flight, and the neighbours carry their elevations and
     climb differences (:func:`measure_pairs`).
 
@@ -271,13 +275,13 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     b, n = heading.shape
     dev = position.device
     if static_shapes and worlds_last:
-        return _all_pairs_worlds_last(position, heading, camera_range, half_fov, climb)
+        return _all_pairs_worlds_last(position, heading, camera_range, half_fov, space)
     px, py = position[..., 0].contiguous(), position[..., 1].contiguous()
     dx_all = px[..., None, :] - px[..., :, None]  # [B, N, N]: p_j - p_i
     dy_all = py[..., None, :] - py[..., :, None]
     squared = dx_all * dx_all + dy_all * dy_all
     dz_all = None
-    if climb is not None:
+    if space is not None:
         pz = position[..., 2].contiguous()
         dz_all = pz[..., None, :] - pz[..., :, None]
         squared = squared + dz_all * dz_all
@@ -300,11 +304,11 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
             return rows(per_uav[..., None, :].expand(b, n, n))
 
         others = valid[0].reshape(n * n)
-        three = {} if climb is None else dict(dz=rows(dz_all), climb_i=of_i(climb), climb_j=of_j(climb))
+        three = {} if space is None else dict(dz=rows(dz_all), climb_i=of_i(space.climb), climb_j=of_j(space.climb))
         # Oneself at distance 0, as measured (never valid; S4 noise keeps it finite).
-        pairs = measure_pairs(rows(dx_all), rows(dy_all), of_i(heading), of_j(heading), **three)
-        return (measured(pairs, dx_all, dy_all, dz_all, camera_range, half_fov, others, valid, shape=(b, n, n)),
-                NearPairs(None, valid), closest)
+        pairs = measure_pairs(rows(dx_all), rows(dy_all), of_i(heading), of_j(heading), space, **three)
+        return (measured(pairs, dx_all, dy_all, dz_all, camera_range, half_fov, others, valid, shape=(b, n, n),
+                         space=space), NearPairs(None, valid), closest)
     bi, ii, ji = near.nonzero(as_tuple=True)  # ordered by world, UAV, then j
     row = bi * n + ii
     counts = torch.bincount(row, minlength=b * n)
@@ -320,15 +324,16 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
     other.view(-1)[at] = bi * n + ji
     others = other.view(b, n, width)
     dz, three = None, {}
-    if climb is not None:
+    if space is not None:
         dz = dz_all.flatten().take(flat)
-        three = dict(dz=dz, climb_i=climb[..., None], climb_j=climb.flatten().take(others))
-    pairs = measure_pairs(dx, dy, heading[..., None], heading.flatten().take(others), **three)
-    return (measured(pairs, dx, dy, dz, camera_range, half_fov, valid, valid), NearPairs(flat, valid), closest)
+        three = dict(dz=dz, climb_i=space.climb[..., None], climb_j=space.climb.flatten().take(others))
+    pairs = measure_pairs(dx, dy, heading[..., None], heading.flatten().take(others), space, **three)
+    return (measured(pairs, dx, dy, dz, camera_range, half_fov, valid, valid, space=space), NearPairs(flat, valid),
+            closest)
 
 
 def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera_range: float, half_fov: float,
-                           climb: torch.Tensor | None) -> tuple[Neighbours, NearPairs, torch.Tensor]:
+                           space: Space | None) -> tuple[Neighbours, NearPairs, torch.Tensor]:
     """:func:`near_neighbours` of every pair, laid out ``[N_j, N_i, B]``: ``[j, i, b]`` is what UAV
     ``i`` of world ``b`` measures of UAV ``j``."""
     n, b = heading.shape[1], heading.shape[0]
@@ -336,7 +341,7 @@ def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera
     dx, dy = px[:, None] - px[None], py[:, None] - py[None]                       # [N_j, N_i, B]: p_j - p_i
     squared = dx * dx + dy * dy
     dz = None
-    if climb is not None:
+    if space is not None:
         pz = worlds_last(position[..., 2])
         dz = pz[:, None] - pz[None]
         squared = squared + dz * dz
@@ -344,11 +349,11 @@ def _all_pairs_worlds_last(position: torch.Tensor, heading: torch.Tensor, camera
     # sqrt is monotone and exactly rounded: the smallest distance is the root of the smallest square.
     closest = torch.sqrt(torch.where(others, squared, math.inf).amin(0).amin(0))
     valid = others.expand(n, n, b)
-    g = None if climb is None else worlds_last(climb)
-    three = {} if climb is None else dict(dz=dz, climb_i=g[None], climb_j=g[:, None])
+    g = None if space is None else worlds_last(space.climb)
+    three = {} if space is None else dict(dz=dz, climb_i=g[None], climb_j=g[:, None])
     # Stored: the masks below are then compared afresh where read (a stored bool costs more than that).
-    pairs = {key: stored(t) for key, t in measure_pairs(dx, dy, h[None], h[:, None], **three).items()}
-    return (measured(pairs, dx, dy, dz, camera_range, half_fov, valid, valid, pair_dim=0),
+    pairs = {key: stored(t) for key, t in measure_pairs(dx, dy, h[None], h[:, None], space, **three).items()}
+    return (measured(pairs, dx, dy, dz, camera_range, half_fov, valid, valid, pair_dim=0, space=space),
             NearPairs(None, valid, worlds_last=True), closest)
 
 
@@ -372,10 +377,10 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
     present = torch.isfinite(first if dim == -1 else first.permute(2, 1, 0))
     parts = [(at_order(neighbours.distance) / camera_range).clamp(0.0, 1.0),
              at_order(neighbours.bearing) / math.pi]
-    if neighbours.dz is not None:  # 3-D (section 11): the elevation after the azimuth
+    if neighbours.space is not None:  # 3-D (section 11): the elevation after the azimuth
         parts.append(at_order(neighbours.elevation) / math.pi)
     parts.append(at_order(neighbours.heading_difference) / math.pi)
-    if neighbours.dz is not None:
+    if neighbours.space is not None:
         parts.append(at_order(neighbours.climb_difference) / math.pi)
     slots = torch.stack(parts, -1)
     missing = constant([1.0] + [0.0] * (len(parts) - 1), slots)
@@ -387,10 +392,10 @@ def camera_observation(neighbours: Neighbours, n: int, camera_range: float) -> t
 
 
 def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_range: float,
-                       climb: torch.Tensor | None = None) -> torch.Tensor:
+                       space: Space | None = None) -> torch.Tensor:
     """``s_c = [min(d_c / d_v, 1), alpha_c / pi, wrap(phi_i - phi_bar) / pi]`` (specification section 2, Eq. 18 erratum).
 
-    ``phi_bar`` is the circular mean heading. Returns ``[B, N, 3]``. In 3-D (``climb`` given,
+    ``phi_bar`` is the circular mean heading. Returns ``[B, N, 3]``. In ``space`` (its ``climb``;
     section 11) ``[B, N, 5]``: ``[d_c, alpha_c, beta_c / pi, phi_i - phi_bar, (gamma_i - gamma_bar) / pi]``.
     """
     centre = position.mean(-2, keepdim=True)
@@ -398,11 +403,11 @@ def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_ran
     d = length(to_centre)
     phi_bar = circular_mean(heading, -1, keepdim=True)
     parts = [(d / camera_range).clamp_max(1.0), relative_angle(to_centre, heading) / math.pi]
-    if climb is not None:
+    if space is not None:
         parts.append(elevation_of(to_centre[..., 0], to_centre[..., 1], to_centre[..., 2]) / math.pi)
     parts.append(wrap(stored(heading - phi_bar)) / math.pi)
-    if climb is not None:
-        parts.append((climb - climb.mean(-1, keepdim=True)) / math.pi)
+    if space is not None:
+        parts.append((space.climb - space.climb.mean(-1, keepdim=True)) / math.pi)
     return torch.stack(parts, 0).movedim(0, -1)
 
 
@@ -440,7 +445,7 @@ def add_sensor_noise(beams: torch.Tensor, neighbours: Neighbours, *, scan_std: f
     heading_difference = wrap(neighbours.heading_difference + angle_std * normals["heading_difference"])
     # The measured offsets follow the measured distance and bearing (relative to the true heading).
     angle = bearing + torch.atan2(neighbours.dy, neighbours.dx) - neighbours.bearing
-    if neighbours.dz is None:
+    if neighbours.space is None:
         noisy = dataclasses.replace(neighbours, distance=distance, bearing=bearing,
                                     heading_difference=heading_difference, dx=distance * torch.cos(angle),
                                     dy=distance * torch.sin(angle))

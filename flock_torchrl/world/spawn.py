@@ -212,7 +212,8 @@ def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator:
     """
     n = cfg.n_uavs
     cx, cy = cfg.area_center
-    three_d, static = static.is_3d, static.footprints()  # in 3-D the starts are placed on footprints
+    three_d = cfg.dims == 3
+    static = static.footprints() if three_d else static  # in 3-D the starts are placed on footprints
     chi = _uniform((batch,), generator, device, *cfg.chi_range)
     unit = torch.stack((torch.cos(chi), torch.sin(chi)), -1)
     area_center = torch.tensor([cx, cy], device=device)
@@ -331,7 +332,8 @@ def _check(cfg: ScenarioConfig) -> None:
 
     check_scenario_memory(cfg)  # before the lattices and the forest grid are allocated
     n, s = cfg.n_uavs, cfg.spawn_separation
-    static = static_obstacles(cfg, dtype=torch.float64).footprints()  # 3-D: footprints (section 11)
+    static = static_obstacles(cfg, dtype=torch.float64)
+    static = static.footprints() if cfg.dims == 3 else static  # 3-D: footprints (section 11)
     chi = chi_grid(cfg, _CHECK_ANGLES)
     centre = torch.tensor(cfg.area_center, dtype=torch.float64) + cfg.d_env * torch.stack(
         (torch.cos(chi), torch.sin(chi)), -1)                                         # [A, 2]

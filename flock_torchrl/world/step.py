@@ -32,6 +32,7 @@ from .reward import cohesion_range, total_reward
 from .laser import laser_scan, scan_observation, shortest_beams
 from .sensors import (add_sensor_noise, camera_observation, goal_observation, goal_polar, near_neighbours,
                       sensor_normals, swarm_centre_state, visibility)
+from .space import Space, space_of
 from .state import world_state
 
 Tensors = Mapping[str, torch.Tensor]
@@ -59,17 +60,17 @@ def whole_step_guards(entries: Sequence[Any]) -> list[bool]:
 
 def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius: float,
                  drawn_circles: torch.Tensor, drawn_rectangles: torch.Tensor,
-                 drawn_spheres: torch.Tensor | None = None) -> Obstacles:
+                 drawn_spheres: torch.Tensor | None = None, space: Space | None = None) -> Obstacles:
     """Every world's obstacles, in the laser's index order: the fixed circles, the moving circles
     of ``moving_radius`` at ``moving_position [B, K, 2]``, the episode's ``drawn_circles
-    [B, C, 3]``; then the fixed rectangles and the ``drawn_rectangles [B, R, 4]``. In 3-D
-    (``static.spheres`` set; section 11) circles are cylinders ``[.., 5]`` (the moving ones
+    [B, C, 3]``; then the fixed rectangles and the ``drawn_rectangles [B, R, 4]``. In ``space``
+    (section 11) circles are cylinders ``[.., 5]`` (the moving ones
     unbounded in height), rectangles boxes ``[.., 6]``, then the fixed and ``drawn_spheres [B, S, 4]``."""
     b = moving_position.shape[0]
     circles = static.circles.expand(b, -1, -1)
     if moving_position.shape[1]:
         moving = torch.cat((moving_position, torch.full_like(moving_position[..., :1], moving_radius)), -1)
-        if static.is_3d:
+        if space is not None:
             moving = torch.cat((moving, torch.full_like(moving[..., :2], FULL_HEIGHT) * constant((-1.0, 1.0), moving)),
                                -1)
         circles = torch.cat((circles, moving), 1)
@@ -78,10 +79,10 @@ def obstacles_of(static: Obstacles, moving_position: torch.Tensor, moving_radius
     rectangles = static.rectangles.expand(b, -1, -1)
     if drawn_rectangles.shape[1]:
         rectangles = torch.cat((rectangles, drawn_rectangles), 1)
-    if not static.is_3d:
+    if space is None:
         return Obstacles(circles, rectangles)
     spheres = static.spheres.expand(b, -1, -1)
-    if drawn_spheres is not None and drawn_spheres.shape[1]:
+    if drawn_spheres.shape[1]:
         spheres = torch.cat((spheres, drawn_spheres), 1)
     return Obstacles(circles, rectangles, spheres)
 
@@ -90,7 +91,7 @@ def world_obstacles(state: Tensors, static: Obstacles, cfg: ScenarioConfig) -> O
     """:func:`obstacles_of` the physical ``state`` (its ``moving_position``, ``drawn_circles``
     and ``drawn_rectangles``)."""
     return obstacles_of(static, state["moving_position"], cfg.moving_radius, state["drawn_circles"],
-                        state["drawn_rectangles"], state.get("drawn_spheres"))
+                        state["drawn_rectangles"], state.get("drawn_spheres"), space_of(cfg))
 
 
 def noise_draws(cfg: ScenarioConfig, n_worlds: int, generator: torch.Generator | None,
@@ -126,13 +127,13 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     neighbours reduce over the outermost dimension; the keys returned have the same shapes.
     """
     position, heading, goal = state["position"], state["heading"], state["goal"]
-    climb, laser = (state["climb"], cfg.laser) if cfg.dims == 3 else (None, None)  # 3-D: section 11
+    space = space_of(cfg, state["climb"])  # None in the plane (section 11)
     obstacles = world_obstacles(state, static, cfg)
     beams, beam_obstacle = laser_scan(position, heading, obstacles, cfg.n_beams, cfg.laser_range, static_shapes,
-                                      laser)
+                                      space)
     # Only UAVs within camera range can be seen or push back: the pairs are packed per UAV.
     true_neighbours, pairs, closest = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov,
-                                                      static_shapes, climb, worlds_last=static_shapes)
+                                                      static_shapes, space, worlds_last=static_shapes)
     # The critic's camera sees all round: the same measurements, wider visibility.
     all_round = true_neighbours.with_visibility(
         visibility(true_neighbours.distance, true_neighbours.cone_angle, cfg.camera_range, math.pi, pairs.valid))
@@ -149,23 +150,23 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
     # critic's state all read them.
     sensed_shortest = shortest_beams(sensed_beams, max(cfg.n_scan, 1), static_shapes)
     true_shortest = shortest_beams(beams, max(cfg.n_scan, 1), static_shapes) if cfg.noise else sensed_shortest
-    polar = goal_polar(position, heading, goal, climb)
+    polar = goal_polar(position, heading, goal, space)
     d_goal, alpha_goal = polar[0], polar[-1]  # 3-D: the off-axis angle, what r_g reads
-    o_g = goal_observation(position, heading, goal, cfg.goal_scale, polar, climb)
+    o_g = goal_observation(position, heading, goal, cfg.goal_scale, polar, space)
     # The actor's slots: the camera's field of view (the paper), or all round (``actor_camera``),
     # the same (noisy) measurements either way; the instinct below keeps the field of view.
     actor_view = neighbours if cfg.actor_camera == "paper" else neighbours.with_visibility(all_round.visible)
     observation = torch.cat(
-        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest, laser),
+        (o_g, scan_observation(sensed_beams, cfg.n_scan, cfg.laser_range, sensed_shortest, space),
          camera_observation(actor_view, cfg.n_cam, cfg.camera_range)), -1)
     critic_state = torch.cat(
-        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest, laser),
+        (o_g, scan_observation(beams, cfg.n_scan, cfg.laser_range, true_shortest, space),
          camera_observation(all_round, cfg.n_cam, cfg.camera_range),
-         swarm_centre_state(position, heading, cfg.camera_range, climb)), -1)
+         swarm_centre_state(position, heading, cfg.camera_range, space)), -1)
     triggered, repulsion_command = instinct_command(
         position, heading, goal, sensed_beams, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
         safe_distance=cfg.safe_distance, tangential=cfg.tangential, shortest=sensed_shortest,
-        mode=cfg.instinct_mode, laser=laser, taper=cfg.tangential_taper)
+        mode=cfg.instinct_mode, space=space, taper=cfg.tangential_taper)
     out = {
         "observation": observation,
         "state": critic_state,
@@ -177,7 +178,7 @@ def sense(state: Tensors, static: Obstacles, cfg: ScenarioConfig,
         "d_uav1": true_neighbours.nearest_distance(),
         "d_goal": d_goal,
         "alpha_goal": alpha_goal,
-        "obstacle_distance": nearest_obstacle_distance(position, obstacles),
+        "obstacle_distance": nearest_obstacle_distance(position, obstacles, space),
         "closest_pair": closest,
     }
     if static_shapes:  # per-UAV results of the worlds-last layout are transposed views: stored [B, N, ...],
@@ -202,8 +203,9 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     compiles whole (``torch.compile(advance, fullgraph=True)``), and run eagerly it is the
     compiled step's twin.
     """
+    space = space_of(cfg, state["climb"])  # None in the plane (section 11)
     if cfg.action_mode == "policy":
-        command = action_to_command(action, state["heading"], cfg.climb_max)
+        command = action_to_command(action, state["heading"], space)
     else:  # the action is the velocity command (rule-based controllers)
         command = action
     if cfg.instinct:
@@ -214,7 +216,7 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     command = clip_command(command, cfg.v_max)
     position, velocity = first_order_step(state["position"], state["velocity"], command, cfg.dt, cfg.tau_v)
     climb = state["climb"]
-    if cfg.dims == 3:  # the ground and ceiling, and the flight-path angle (section 11)
+    if space is not None:  # the ground and ceiling, and the flight-path angle (section 11)
         position, velocity = clamp_altitude(position, velocity, *cfg.altitude)
         heading, climb = update_attitude(state["heading"], climb, velocity, cfg.heading_speed_threshold)
     else:

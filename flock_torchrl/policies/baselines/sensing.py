@@ -21,9 +21,9 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from ...config.scenario import Laser
 from ...world.laser import beam_azimuths, beam_offsets, ring_tables
 from ...world.sensors import add_sensor_noise, near_neighbours, observe_neighbours
+from ...world.space import Space, space_of
 
 
 @dataclass
@@ -45,7 +45,7 @@ class NeighbourView:
 
 def neighbour_view(position: torch.Tensor, velocity: torch.Tensor, heading: torch.Tensor, camera_range: float,
                    half_fov: float, noise: tuple[float, float] | None = None,
-                   generator: torch.Generator | None = None, climb: torch.Tensor | None = None) -> NeighbourView:
+                   generator: torch.Generator | None = None, space: Space | None = None) -> NeighbourView:
     """The camera's view of the other UAVs plus their relative velocities (specification section 2 camera, specification section 7).
 
     Args:
@@ -54,16 +54,16 @@ def neighbour_view(position: torch.Tensor, velocity: torch.Tensor, heading: torc
         noise: ``(distance_std, angle_std)`` of the S4 camera noise, or ``None``; the bearing
             and distance a UAV measures then carry it, as they do in the env's observation.
         generator: source of that noise.
-        climb: 3-D (docs/specification.md section 11): the flight-path angles ``[B, N]``; positions
+        space: docs/specification.md section 11, with the flight-path angles ``climb [B, N]``; positions
             and velocities are then ``[B, N, 3]`` and the camera is the cone about the direction of flight.
 
     Returns:
         A :class:`NeighbourView`; entries of invisible pairs are zeroed.
     """
-    if climb is None:
+    if space is None:
         seen = observe_neighbours(position, heading, camera_range, half_fov)
     else:  # every pair, measured as the world's camera measures it
-        seen = near_neighbours(position, heading, camera_range, half_fov, static_shapes=True, climb=climb)[0]
+        seen = near_neighbours(position, heading, camera_range, half_fov, static_shapes=True, space=space)[0]
     if noise is not None:
         dummy_beams = position.new_zeros(position.shape[:-1] + (1,))
         _, seen = add_sensor_noise(dummy_beams, seen, scan_std=0.0, distance_std=noise[0], angle_std=noise[1],
@@ -96,7 +96,7 @@ class ObstacleView:
 
 
 def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch.Tensor,
-                 n_obstacles: int, laser: Laser | None = None) -> ObstacleView:
+                 n_obstacles: int, space: Space | None = None) -> ObstacleView:
     """Nearest laser hit per obstacle (docs/baselines.md, "What a baseline UAV senses").
 
     Beam ``k`` points at ``heading + k * 2 pi / K``. For each obstacle the shortest beam that hit
@@ -106,7 +106,7 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
     Args:
         scan: sensed beam lengths ``[B, N, K]``; scan_obstacle: obstacle index per beam
             ``[B, N, K]`` (-1: none); heading: ``[B, N]``; n_obstacles: ``M``.
-        laser: 3-D (section 11): the laser's beams (:class:`~flock_torchrl.config.scenario.Laser`);
+        space: section 11, its ``laser``'s beams (:class:`~flock_torchrl.config.scenario.Laser`);
             offsets and normals are then ``[B, N, M, 3]``.
 
     Returns:
@@ -121,12 +121,12 @@ def nearest_hits(scan: torch.Tensor, scan_obstacle: torch.Tensor, heading: torch
     else:
         distance, beam = lengths.min(-2)                                    # [B, N, M]
     seen = torch.isfinite(distance)
-    if laser is None:
+    if space is None:
         angle = heading[..., None] + beam_offsets(scan.shape[-1], scan.device, scan.dtype)[beam]
         direction = torch.stack((torch.cos(angle), torch.sin(angle)), -1)   # UAV -> hit, [B, N, M, 2]
     else:
-        angle = heading[..., None] + beam_azimuths(laser, beam, scan)
-        cos_e, sin_e = (t[beam] for t in ring_tables(laser, scan))
+        angle = heading[..., None] + beam_azimuths(space.laser, beam, scan)
+        cos_e, sin_e = (t[beam] for t in ring_tables(space.laser, scan))
         direction = torch.stack((cos_e * torch.cos(angle), cos_e * torch.sin(angle), sin_e), -1)
     mask = seen[..., None]
     offset = torch.where(mask, distance.clamp_max(1e9)[..., None] * direction, torch.zeros_like(direction))
@@ -199,14 +199,14 @@ class RuleBasedPolicy(TensorDictModuleBase):
         position, velocity = tensordict["agents", "position"], tensordict["agents", "velocity"]
         heading = tensordict["agents", "heading"]
         noise, generator = self._camera_noise(position.device)
-        climb = tensordict["agents", "climb"] if cfg.dims == 3 else None
+        space = space_of(cfg, tensordict.get(("agents", "climb"), None))  # None in the plane
         return Percept(
             velocity=velocity,
             to_goal=tensordict["goal"][:, None, :] - position,
             neighbours=neighbour_view(position, velocity, heading, cfg.camera_range, cfg.half_fov, noise, generator,
-                                      climb),
+                                      space),
             obstacles=nearest_hits(tensordict["agents", "scan"], tensordict["agents", "scan_obstacle"], heading,
-                                   self.n_obstacles, cfg.laser),
+                                   self.n_obstacles, space),
         )
 
     def command(self, percept: Percept) -> torch.Tensor:
