@@ -4,12 +4,11 @@ policy, a function of one member called for K of them, and gradient clipping per
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from torch import nn
 from torchrl.data.replay_buffers.samplers import Sampler
 
 

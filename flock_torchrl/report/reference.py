@@ -18,7 +18,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 from ..run.results import EvaluationResult
 from ..world.metrics import CELL_METRICS

@@ -18,8 +18,6 @@ import time
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
-import torch
-
 from ..config import TuneConfig
 from ..io import write_csv
 from ..policies.baselines import controller_params

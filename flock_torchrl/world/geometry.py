@@ -74,12 +74,13 @@ def relative_angle(vec: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
     return wrap(bearing(vec) - heading)
 
 
-def length(vec: torch.Tensor) -> torch.Tensor:
-    """Euclidean length over the last dimension (2 or 3), one formula for both: where the
-    components after the second are all zero (always, for a 2-vector) it is the length of the
-    first two, as the plane computes it, so a level 3-vector gets the plane's length bit for bit."""
-    flat = torch.linalg.vector_norm(vec[..., :2], dim=-1)
-    return torch.where((vec[..., 2:] == 0).all(-1), flat, torch.linalg.vector_norm(vec, dim=-1))
+def length(vec: torch.Tensor, space: Space | None = None) -> torch.Tensor:
+    """Euclidean length over the last dimension. In ``space`` (3-vectors) a vector with a zero
+    vertical component gets exactly the length of its horizontal part, as the plane computes it."""
+    if space is None:
+        return torch.linalg.vector_norm(vec, dim=-1)
+    return torch.where(vec[..., 2] == 0, torch.linalg.vector_norm(vec[..., :2], dim=-1),
+                       torch.linalg.vector_norm(vec, dim=-1))
 
 
 def circular_mean(angles: torch.Tensor, dim: int = -1, keepdim: bool = False) -> torch.Tensor:
@@ -477,14 +478,14 @@ def nearest_obstacle_distance(points: torch.Tensor, obstacles: Obstacles, space:
     return d.amin(-1)
 
 
-def pairwise(positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def pairwise(positions: torch.Tensor, space: Space | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Pairwise offsets and distances between UAVs.
 
     Args:
-        positions: ``[B, N, 2]`` (or ``[B, N, 3]``).
+        positions: ``[B, N, 2]`` (in ``space`` ``[B, N, 3]``).
 
     Returns:
         ``(offset [B, N, N, d], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
     """
     offset = positions[:, None, :, :] - positions[:, :, None, :]
-    return offset, length(offset)
+    return offset, length(offset, space)

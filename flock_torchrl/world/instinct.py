@@ -163,7 +163,7 @@ def hold_in_crowd(uav: torch.Tensor, mode: str, *, beams: torch.Tensor, heading:
         return uav
     if mode == "saturated":
         limit = gain * (r0 - safe_distance) if cap is None else cap
-        norm = length(uav)[..., None]
+        norm = length(uav, space)[..., None]
         return uav * torch.where(norm > limit, limit / norm.clamp_min(1e-12), torch.ones_like(norm))
     if mode == "no_push_in":
         d_scan1, wall = beam_return_offset(beams, heading, shortest, space)

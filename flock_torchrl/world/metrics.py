@@ -17,6 +17,7 @@ import torch
 from tensordict import TensorDict
 
 from .geometry import circular_mean, length, pairwise, stored, wrap
+from .space import Space
 
 
 @dataclass(frozen=True)
@@ -65,8 +66,8 @@ def closest_pair(distance: torch.Tensor) -> torch.Tensor:
 
 
 def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: torch.Tensor,
-                    obstacle_distance: torch.Tensor, pair_distance: torch.Tensor | None = None
-                    ) -> dict[str, torch.Tensor]:
+                    obstacle_distance: torch.Tensor, pair_distance: torch.Tensor | None = None,
+                    space: Space | None = None) -> dict[str, torch.Tensor]:
     """Swarm quantities of one time step, each ``[B]``.
 
     Args:
@@ -79,17 +80,17 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
         one UAV), ``d_c`` (Eq. 33 summand), ``v_error`` (Eq. 34 with the 1/N erratum),
         ``phi_error`` (Eq. 35 with the circular mean), ``speed`` (Eq. 36 summand).
     """
-    uav = pair_distance if pair_distance is not None else closest_pair(pairwise(position)[1])
+    uav = pair_distance if pair_distance is not None else closest_pair(pairwise(position, space)[1])
     centre = position.mean(-2, keepdim=True)
     swarm_velocity = velocity.mean(-2)
-    v_c = length(swarm_velocity)  # 2-D or 3-D (section 11)
-    v_i = length(velocity)
+    v_c = length(swarm_velocity, space)
+    v_i = length(velocity, space)
     phi_bar = circular_mean(heading, -1, keepdim=True)
     return {
         # A UAV that overshoots into an obstacle on its crash step is at distance 0, not negative.
         "obs": obstacle_distance.amin(-1).clamp_min(0.0),
         "uav": uav,
-        "d_c": length(position - centre).mean(-1),
+        "d_c": length(position - centre, space).mean(-1),
         "v_error": (v_i - v_c[:, None]).abs().mean(-1),
         "phi_error": wrap(stored(heading - phi_bar)).abs().mean(-1),
         "speed": v_c,

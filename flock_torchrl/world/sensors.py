@@ -90,7 +90,7 @@ def goal_polar(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor
         return torch.linalg.vector_norm(to_goal, dim=-1), relative_angle(to_goal, heading)
     alpha = relative_angle(to_goal, heading)
     beta = elevation_of(to_goal[..., 0], to_goal[..., 1], to_goal[..., 2])
-    return length(to_goal), alpha, beta, off_axis(alpha, beta, space.climb)
+    return length(to_goal, space), alpha, beta, off_axis(alpha, beta, space.climb)
 
 
 def goal_observation(position: torch.Tensor, heading: torch.Tensor, goal: torch.Tensor, goal_scale: float,
@@ -400,7 +400,7 @@ def swarm_centre_state(position: torch.Tensor, heading: torch.Tensor, camera_ran
     """
     centre = position.mean(-2, keepdim=True)
     to_centre = stored(centre - position)
-    d = length(to_centre)
+    d = length(to_centre, space)
     phi_bar = circular_mean(heading, -1, keepdim=True)
     parts = [(d / camera_range).clamp_max(1.0), relative_angle(to_centre, heading) / math.pi]
     if space is not None:

@@ -238,12 +238,12 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
         d_goal=now["d_goal"], d_goal_prev=sensed["d_goal"], alpha_goal=now["alpha_goal"],
         goal_radius=cfg.goal_radius, d_collision=d_collision,
         heading_deviation=wrap(stored(heading - circular_mean(heading, -1, keepdim=True))),
-        d_centre=length(position - centre),
+        d_centre=length(position - centre, space),
         action=action, prev_action=prev_action, reach=cohesion_range(cfg.cohesion_range, position.shape[-2]),
         shape=cfg.collision_shape)
     reached = (now["d_goal"] < cfg.goal_radius).any(-1)
     crashed = (now["obstacle_distance"] < cfg.collision_distance).any(-1)
-    stats = step_statistics(position, velocity, heading, now["obstacle_distance"], now["closest_pair"])
+    stats = step_statistics(position, velocity, heading, now["obstacle_distance"], now["closest_pair"], space)
     terminated = reached | crashed
     if cfg.uav_collision_terminates:
         terminated = terminated | (stats["uav"] < cfg.collision_distance)
