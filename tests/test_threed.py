@@ -269,7 +269,8 @@ def test_the_tapered_tangential_term_fades_on_the_line_of_the_push():
     # On the line (the tie), no tangential part for any v_r, here a slanted one.
     slanted = torch.tensor([[[[1.0, 0.5, -2.0]]]])
     radial = repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, tangential=False, space=Space())
-    torch.testing.assert_close(repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, taper=taper, space=Space()), radial)
+    torch.testing.assert_close(repulsion(slanted, ahead[1], -3 * slanted[0], 1.0, 5.0, taper=taper, space=Space()),
+                               radial)
     # Outside the taper (the goal 90 deg off the line, (0, 10, 1)) the full length, as untapered:
     # v_t = 4 (0, 10, 1) / sqrt(101).
     side = torch.tensor([[[0.0, 10.0, 1.0]]])
@@ -278,7 +279,8 @@ def test_the_tapered_tangential_term_fades_on_the_line_of_the_push():
         torch.testing.assert_close(repulsion(*ahead, side, 1.0, 5.0, taper=t, space=Space()), expected)
     # Level push and goal: section 3's planar term at full length, even inside the taper (the 2-D case).
     level = torch.tensor([[[-10.0, 0.01, 0.0]]])
-    torch.testing.assert_close(repulsion(*ahead, level, 1.0, 5.0, taper=taper, space=Space()), torch.tensor([[[-4.0, 4.0, 0.0]]]))
+    torch.testing.assert_close(repulsion(*ahead, level, 1.0, 5.0, taper=taper, space=Space()),
+                               torch.tensor([[[-4.0, 4.0, 0.0]]]))
 
 
 def test_the_vertical_beam_pair_reads_the_clearance_above_and_below():
@@ -307,7 +309,8 @@ def test_the_vertical_beam_pair_reads_the_clearance_above_and_below():
             # The instinct's virtual UAV 2 m above pushes straight down: (5 - 2) (0, 0, -1).
             alone = near_neighbours(position, heading, 5.0, math.pi / 2, space=Space(climb=torch.zeros(1, 1)))[0]
             on, command = instinct_command(position, heading, torch.tensor([[0.0, 40.0, 2.0]]), beams, alone,
-                                           gain=1.0, r0=5.0, safe_distance=2.0, tangential=False, space=Space(laser=laser))
+                                           gain=1.0, r0=5.0, safe_distance=2.0, tangential=False,
+                                           space=Space(laser=laser))
             assert on.item() and command[0, 0].tolist() == pytest.approx([0.0, 0.0, -3.0], abs=1e-6)
 
 

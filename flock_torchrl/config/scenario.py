@@ -172,7 +172,8 @@ class ScenarioConfig(Schema):
 
     @property
     def laser(self) -> "Laser | None":
-        """The 3-D laser's beams (what :func:`~flock_torchrl.world.space.space_of` hands the sensors), ``None`` in 2-D."""
+        """The 3-D laser's beams (what :func:`~flock_torchrl.world.space.space_of` hands the
+        sensors), ``None`` in 2-D."""
         if self.dims != 3:
             return None
         return Laser(self.n_beams, tuple(float(e) for e in self.laser_rings), bool(self.laser_vertical))

@@ -70,7 +70,8 @@ def update_attitude(heading: torch.Tensor, climb: torch.Tensor, velocity: torch.
     horizontal speed exceeds ``threshold``, ``gamma = atan2(v_z, |v_h|)`` where the speed does;
     otherwise each is kept. Level flight updates ``phi`` as :func:`update_heading` does."""
     horizontal = torch.linalg.vector_norm(velocity[..., :2], dim=-1)
-    speed = torch.where(velocity[..., 2] == 0, horizontal, torch.linalg.vector_norm(velocity, dim=-1))  # as geometry.length in space
+    # The speed as geometry.length gives it in space: a level velocity's is its horizontal speed, bit for bit.
+    speed = torch.where(velocity[..., 2] == 0, horizontal, torch.linalg.vector_norm(velocity, dim=-1))
     heading = torch.where(horizontal > threshold, torch.atan2(velocity[..., 1], velocity[..., 0]), heading)
     climb = torch.where(speed > threshold, torch.atan2(velocity[..., 2], horizontal), climb)
     return heading, climb

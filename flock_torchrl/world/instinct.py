@@ -58,7 +58,8 @@ def repulsion_xy(dx: torch.Tensor, dy: torch.Tensor, dist: torch.Tensor, active:
     ``to_goal``: the components of ``p_g - p_i``, each broadcasting against ``dx`` (``[B, N, 1]``).
     ``dim``: the axis of the neighbours, summed over (0 for the compiled step's ``[M, N, B]``).
 
-    In ``space`` (with the offsets' ``dz``, ``to_goal`` of three components; section 11): ``(v_x, v_y, v_z)``, with ``v_t``
+    In ``space`` (with the offsets' ``dz``, ``to_goal`` of three components; section 11): ``(v_x, v_y,
+    v_z)``, with ``v_t``
     along the goal's component orthogonal to ``v_r`` (:func:`tangential_3d`, faded within ``taper`` of
     ``v_r``'s line); where ``v_r`` and the goal are both level it is the 2-D ``v_t``, computed as in 2-D."""
     counted = active & (dist > 0) & (dist < r0)

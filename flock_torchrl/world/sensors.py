@@ -190,8 +190,8 @@ def measure_pairs(dx: torch.Tensor, dy: torch.Tensor, heading_i: torch.Tensor, h
     """What UAV i's camera measures of UAV j at offset ``p_j - p_i = (dx, dy)`` (section 2, Eq. 17
     before normalising): ``distance``, ``bearing`` relative to i's heading and ``heading_difference``
     ``wrap(phi_i - phi_j)``, all broadcast to the offsets' shape. In ``space`` (with ``dz`` and the
-    flight-path angles of i and j in the offsets' layout; section 11) the distance is 3-D, and the ``elevation``, ``climb_difference``
-    ``gamma_i - gamma_j`` and ``view_angle`` (the off-axis angle of j from i's direction of flight)
+    flight-path angles of i and j in the offsets' layout; section 11) the distance is 3-D, and the
+    ``elevation``, ``climb_difference`` ``gamma_i - gamma_j`` and ``view_angle`` (the off-axis angle of j from i's direction of flight)
     join them; with ``dz = 0`` and level flight the first three are the plane's bit for bit."""
     bearing = wrap(torch.atan2(dy, dx) - heading_i)
     squared = dx * dx + dy * dy
