@@ -8,7 +8,8 @@ every batch, the SAC actor's ``ProbabilisticActor`` as the policy); the policy c
 
 Each candidate steps its own env (same scenario and seed) with Policy3-G's untrained SAC actor.
 Candidates alternate round by round in one process and each keeps its best round
-(:func:`benchmarks.timing.paired`), so load from other processes hits all of them alike. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+(:func:`benchmarks.timing.paired`), so load from other processes hits all of them alike. Run with
+one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations
@@ -98,8 +99,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=7)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    for line in collection_lines(args.compile == "true", args.steps, args.rounds):
-        print(line, flush=True)
+    print(*collection_lines(args.compile == "true", args.steps, args.rounds), sep="\n", flush=True)
 
 
 if __name__ == "__main__":

@@ -7,9 +7,9 @@ flock_torchrl, TorchRL or tensordict that asked, the operators whose result depe
 values the host must see: ``.item()``, ``bool()``, ``int()`` and ``float()`` of a tensor
 (``_local_scalar_dense``), ``nonzero``, indexing with a boolean mask, ``masked_select``,
 ``unique``, ``equal`` and ``allclose``, a copy from a CUDA tensor to the CPU, and one from the
-CPU to CUDA unless non-blocking from pinned memory (torch waits for the stream after it). It sees the first kinds on
-a CPU just as on a GPU (the copies only where there is CUDA), so the tests here can hold a
-training iteration to none::
+CPU to CUDA unless non-blocking from pinned memory (torch waits for the stream after it). It sees
+the first kinds on a CPU just as on a GPU (the copies only where there is CUDA), so the tests here
+can hold a training iteration to none::
 
     with HostReads() as reads:
         ...
@@ -122,17 +122,12 @@ def _place(stack: traceback.StackSummary, packages: tuple[str, ...] = _PACKAGES)
 
 
 class HostReads(TorchDispatchMode):
-    """Counts host reads of tensor values while active (see the module's docstring).
+    """Counts host reads of tensor values while active (what each count holds: the module's
+    docstring): ``counts`` and ``in_captured`` by ``(operator, place)``, outside and inside
+    :data:`CAPTURED` functions; ``made`` and ``launched`` by place."""
 
-    ``counts``: a ``Counter`` of ``(operator, place)`` of the reads outside :data:`CAPTURED`
-    functions; ``in_captured``: those inside them; ``total``: the sum of ``counts``;
-    ``table()``: one line per place, most first; ``made``: a ``Counter`` of the places that made
-    a tensor from Python numbers; with ``launches``, ``launched`` (a ``Counter`` by place) and
-    ``launched_in_graphs`` (a number), see the module's docstring."""
-
-    def __init__(self, captured: tuple[str, ...] = CAPTURED, launches: bool = False) -> None:
+    def __init__(self, launches: bool = False) -> None:
         super().__init__()
-        self.captured = frozenset(captured)
         self.launches = launches
         self.launched: collections.Counter[str] = collections.Counter()
         self.launched_in_graphs = 0
@@ -146,7 +141,7 @@ class HostReads(TorchDispatchMode):
         launches = self.launches and _launches(func)
         stack = traceback.extract_stack()[:-1] if reads or made or launches else None  # once: it is slow
         if reads:
-            inside = any(frame.name in self.captured for frame in stack)
+            inside = any(frame.name in CAPTURED for frame in stack)
             (self.in_captured if inside else self.counts)[(func.overloadpacket.__name__, _place(stack))] += 1
         elif made:
             self.made[_place(stack)] += 1

@@ -31,8 +31,9 @@ if not __package__:  # `python benchmarks/gpu.py`: the repository's root, so `be
 
 import torch  # noqa: E402
 
-from benchmarks.population import recipe_transitions, row_in_child  # noqa: E402
+from benchmarks.population import learner_batches, recipe_config, recipe_transitions, row_in_child  # noqa: E402
 from benchmarks.rows import env_rows, format_rows  # noqa: E402
+from benchmarks.timing import Lines  # noqa: E402
 
 # The paper's study: eight learned policies, ten seeds each, and about 816k updates per run
 # (docs/results.md: Policy3-G's paper-recipe run, 816,026 updates in 5000 episodes).
@@ -44,10 +45,7 @@ FAST_POLICIES, FAST_SEEDS = 10, 10
 def fast_updates() -> int:
     """Updates of one ``experiment=fast`` run: its batches after the random frames, times the
     updates per batch (from the composed recipe)."""
-    from flock_torchrl.config import TrainConfig
-    from flock_torchrl.run.setup import make_train_config
-
-    exp = TrainConfig.from_config(make_train_config("policy3_g", "fast")).experiment
+    exp = recipe_config("fast").experiment
     frames = exp.num_envs * exp.steps_per_batch
     learning = math.ceil(exp.max_frames / frames) - math.ceil(exp.init_random_frames / frames) + 1
     return max(learning, 0) * exp.updates_per_batch
@@ -71,10 +69,7 @@ def projection_line(where: str, paper_rate: float, fast_rate: float, members: in
 def reserve_for(recipe: str) -> int:
     """The loops' ``reset_pool``: a reserve of fresh worlds for 64 steps of the recipe's worlds
     (at least 256), so a loop reads the device for its resets once in 64 steps at most."""
-    from flock_torchrl.config import TrainConfig
-    from flock_torchrl.run.setup import make_train_config
-
-    return max(256, 64 * TrainConfig.from_config(make_train_config("policy3_g", recipe)).experiment.num_envs)
+    return max(256, 64 * recipe_config(recipe).experiment.num_envs)
 
 
 def synchronize(device: str) -> None:
@@ -85,28 +80,17 @@ def synchronize(device: str) -> None:
 
 def update_lines(device: str, members=(1, 10, 80), calls: int = 200) -> list[str]:
     """Member-updates/s of the paper recipe's update alone on ``device``: captured against not."""
-    from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.policies.learners import OffPolicyLearner
-
     from flock_torchrl import FlockingEnv
 
     cfg, _, seen = recipe_transitions("paper")
     env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0, device=device)
     seen = seen.to(device)
-    size = cfg.algo.batch_size
     lines = []
     for k in members:
         rates = {}
         for cudagraphs in (False, True):
             torch.manual_seed(0)
-            if k == 1:
-                learner = make_learner(env, cfg.algo, cfg.policy.critic_input, cudagraphs=cudagraphs)
-                batches = [seen[torch.randint(0, seen.shape[0], (size,), device=device)] for _ in range(8)]
-            else:
-                learner = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, list(range(k)),
-                                            cudagraphs=cudagraphs)
-                batches = [seen[torch.randint(0, seen.shape[0], (size * k,), device=device)].reshape(size, k)
-                           for _ in range(8)]
+            learner, batches = learner_batches(cfg, env, seen, k, device=device, cudagraphs=cudagraphs)
             for batch in batches:  # warm-up (and the capture)
                 learner.update(batch)
             synchronize(device)
@@ -131,16 +115,10 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
     compilation included). ``device="cpu"`` with small sizes is a dry run of the same code, and
     ``tests/test_benchmark.py`` runs them with ``device="cuda"`` on CUDA simulated on the CPU
     (``tests/simulated_cuda.py``), so a GPU's scarce minutes are not spent finding their bugs."""
-    lines: list[str] = []
-
-    def say(*new: str) -> None:
-        lines.extend(new)
-        if print_each:
-            print(*new, sep="\n", flush=True)
-
+    lines = Lines(print_each)
     name = torch.cuda.get_device_name(device) if torch.device(device).type == "cuda" else f"none ({device}: a dry run)"
-    say(f"GPU: {name}, torch {torch.__version__}")
-    say(*update_lines(device, update_members, update_calls))
+    lines.say(f"GPU: {name}, torch {torch.__version__}")
+    lines.say(*update_lines(device, update_members, update_calls))
     rates: dict[tuple[str, int], float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in ("paper", "fast"):
@@ -153,18 +131,17 @@ def gpu_lines(device: str = "cuda", frames: int = 3000, members=(10, 80), row_ti
                 what = f"GPU loop {recipe:5s} members {k:2d} cudagraphs=true compile={mode} reset_pool={reserve}"
                 r = row_in_child(recipe, k, n, mode, Path(tmp), device, "true", row_timeout, reserve)
                 if r is None:
-                    say(f"{what}: did not finish {n} frames within {row_timeout:.0f} s")
+                    lines.say(f"{what}: did not finish {n} frames within {row_timeout:.0f} s")
                     continue
                 if reserve:
                     rates[recipe, k] = r["member_updates_per_s"]
                 split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
-                say(f"{what}: {r['member_updates_per_s']:9.0f} "
-                    f"member-updates/s ({r['updates']} updates in {r['loop_s']:.1f} s; {split}); set-up "
-                    f"{r['setup_s']:.1f} s; peak GPU memory {r['gpu_peak_mb']:.0f} MB")
+                lines.say(f"{what}: {r['member_updates_per_s']:9.0f} member-updates/s ({r['updates']} updates in "
+                          f"{r['loop_s']:.1f} s; {split}); set-up {r['setup_s']:.1f} s; peak GPU memory "
+                          f"{r['gpu_peak_mb']:.0f} MB")
     if ("paper", members[0]) in rates and ("fast", members[0]) in rates:
-        say(projection_line("GPU", rates["paper", members[0]], rates["fast", members[0]], members[0]))
-    rows = env_rows((env_batch,), steps=4, repeat=2, device=device)
-    say(*format_rows(rows).splitlines()[1:])
+        lines.say(projection_line("GPU", rates["paper", members[0]], rates["fast", members[0]], members[0]))
+    lines.say(*format_rows(env_rows((env_batch,), steps=4, repeat=2, device=device)).splitlines()[1:])
     return lines
 
 

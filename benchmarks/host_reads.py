@@ -24,50 +24,47 @@ from pathlib import Path
 if not __package__:  # `python benchmarks/host_reads.py`: the repository's root, so `benchmarks` imports
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from flock_torchrl.capture import captured  # noqa: E402
-from flock_torchrl.config import TrainConfig  # noqa: E402
 from benchmarks.counting import HostReads  # noqa: E402
+from benchmarks.population import SHORT_RUN, recipe_config  # noqa: E402
+from flock_torchrl.capture import captured  # noqa: E402
 from flock_torchrl.run.trainer import Training  # noqa: E402
-from flock_torchrl.run.setup import make_train_config  # noqa: E402
 from flock_torchrl.world.step import transition  # noqa: E402
 
 WARMUP = 20  # iterations after the random frames before counting: every capture's warm-up is over
 LAUNCH_PLACES = 8  # places listed under the kernel count
 
 
-def counted(cls: type[Training]) -> type[Training]:
-    """``cls`` whose envs step by the static-shape step run eagerly, and whose loop counts host
-    reads from iteration ``start`` on (``cls.reads``, over ``cls.iterations`` iterations). The run
-    is to be eager (``compile=false``, the default): the counter sees what compiled code's eager
-    twins do."""
+def counted(start: int, launches: bool, as_compiled: bool) -> type[Training]:
+    """:class:`Training` whose envs step by the static-shape step run eagerly (``as_compiled``),
+    and whose loop counts host reads (``launches``: and kernels) from iteration ``start`` on (the
+    class's ``reads``, over its ``iterations``). The run is to be eager (``compile=false``, the
+    default): the counter sees what compiled code's eager twins do."""
 
-    class Counted(cls):
-        start = 0
+    class Counted(Training):
         reads: HostReads | None = None
         iterations = 0
-        launches = False
-        as_compiled = True
 
         def _build(self, payload):
             super()._build(payload)
-            for env in self.envs if type(self).as_compiled else ():  # as the env builds it with compile_step=False (captured with cudagraphs=true)
+            # As the env builds it with compile_step=False (captured with cudagraphs=true).
+            for env in self.envs if as_compiled else ():
                 env._transition = captured(functools.partial(transition, static_shapes=True, static=env._static,
                                                              cfg=env.cfg), env.device, env.capture_step)
 
         def _consume(self, batches):
-            if self.counters["iterations"] == type(self).start:
-                type(self).reads = HostReads(launches=type(self).launches).__enter__()
+            if self.counters["iterations"] == start:
+                Counted.reads = HostReads(launches=launches).__enter__()
             out = super()._consume(batches)
-            if type(self).reads is not None:
-                type(self).iterations += 1
+            if Counted.reads is not None:
+                Counted.iterations += 1
             return out
 
         def _loop(self, schedule, signals):
             try:
                 super()._loop(schedule, signals)
             finally:
-                if type(self).reads is not None:
-                    type(self).reads.__exit__(None, None, None)
+                if Counted.reads is not None:
+                    Counted.reads.__exit__(None, None, None)
 
     return Counted
 
@@ -78,20 +75,15 @@ def count_reads(recipe: str = "paper", members: int = 1, iterations: int = 200,
     """``(the reads counted, the iterations they span)`` of a short run (see the module's
     docstring); ``launches``: the kernels launched too (``HostReads(launches=True)``, slower);
     ``as_compiled=False``: the env steps as the run builds it (not the static-shape step)."""
-    base = make_train_config("policy3_g", recipe, ["progress=false", "logger=none", "reading=paper_fit",
-                                                   *overrides])
-    exp = TrainConfig.from_config(base).experiment
+    exp = recipe_config(recipe, ["progress=false", "logger=none", "reading=paper_fit", *overrides]).experiment
     per_iteration = exp.num_envs * exp.steps_per_batch
     start = -(-exp.init_random_frames // per_iteration) + WARMUP
     frames = (start + iterations) * per_iteration
-    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, [
-        "progress=false", "logger=none", "reading=paper_fit", "cudagraphs=true", f"population={members}",
-        # Never logged (0 would log every batch, reading the statistics each iteration).
-        f"experiment.max_frames={frames}", "experiment.max_episodes=0", f"experiment.log_every_frames={2 * frames}",
-        "experiment.eval_every_frames=0", "experiment.checkpoint_every_frames=0", "experiment.eval_episodes=1",
-        *overrides]))
-    cls = counted(Training)
-    cls.start, cls.launches, cls.as_compiled = start, launches, as_compiled
+    # log_every_frames past the end: never logged (0 would log every batch, reading the statistics each iteration).
+    cfg = recipe_config(recipe, [*SHORT_RUN, "reading=paper_fit", "cudagraphs=true", f"population={members}",
+                                 f"experiment.max_frames={frames}", f"experiment.log_every_frames={2 * frames}",
+                                 *overrides])
+    cls = counted(start, launches, as_compiled)
     with tempfile.TemporaryDirectory() as folder:
         cls(cfg, Path(folder) / "run").run()
     return cls.reads, cls.iterations
@@ -143,8 +135,8 @@ def main() -> None:
     parser.add_argument("--launches", action="store_true", help="count the kernels launched too")
     parser.add_argument("overrides", nargs="*", help="Hydra overrides of the run (e.g. reset_pool=64)")
     args = parser.parse_args()
-    for line in host_read_lines(args.recipe, args.members, args.iterations, tuple(args.overrides), args.launches):
-        print(line, flush=True)
+    print(*host_read_lines(args.recipe, args.members, args.iterations, tuple(args.overrides), args.launches),
+          sep="\n", flush=True)
 
 
 if __name__ == "__main__":

@@ -2,17 +2,16 @@
 
     .venv/bin/python benchmarks/population.py [--frames 3000] [--members 10] [--recipes paper,fast]
 
-Each row trains in this process, side by side, into a temporary folder: one solo run and one
-population of ``--members`` seeds under the same recipe and frame budget per member, the
-population's update eager (torch.vmap) and the solo run's both eager and compiled (the paper
-recipe's shipped runs compiled it). A row's rate counts the loop's own time (env, collection,
-buffer, sampling, update: the run's time split without evaluation, checkpoints or the first
-compiled update) and prints where that time went. Each row trains in a fresh child process,
-so its peak resident memory (``ru_maxrss``) is its own: a population's memory per member is its
-peak over the members, and what each member beyond the first adds is the population's peak less
-the solo run's, over ``members - 1``. The paper recipe's rows end with what its collector costs
-per step (:mod:`benchmarks.collection`). The GPU's rows are :mod:`benchmarks.gpu`'s. Run with
-one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
+Each row trains into a temporary folder: one solo run and one population of ``--members`` seeds
+under the same recipe and frame budget per member, the population's update eager (torch.vmap) and
+the solo run's both eager and compiled (the paper recipe's shipped runs compiled it). A row's rate
+counts the loop's own time (env, collection, buffer, sampling, update: the run's time split without
+evaluation, checkpoints or the first compiled update) and prints where that time went. Each row
+trains in a fresh child process, so its peak resident memory (``ru_maxrss``) is its own: a
+population's memory per member is its peak over the members, and what each member beyond the first
+adds is the population's peak less the solo run's, over ``members - 1``. The paper recipe's rows end
+with what its collector costs per step (:mod:`benchmarks.collection`). The GPU's rows are
+:mod:`benchmarks.gpu`'s. Run with one thread (``OMP_NUM_THREADS=1``), as the recipes' trainings do.
 """
 
 from __future__ import annotations
@@ -32,11 +31,21 @@ if not __package__:  # `python benchmarks/population.py`: the repository's root,
 
 import torch  # noqa: E402
 
+from benchmarks.timing import Lines  # noqa: E402
 from flock_torchrl.config import TrainConfig  # noqa: E402
+from flock_torchrl.policies.learners import OffPolicyLearner, make_learner  # noqa: E402
 from flock_torchrl.run.launch import train  # noqa: E402
 from flock_torchrl.run.setup import make_train_config  # noqa: E402
 
 LOOP = ("collection", "buffer", "sampling", "update", "members")
+# A training run cut to its loop: no episode limit, evaluation, checkpoints, progress bar or logger.
+SHORT_RUN = ("experiment.max_episodes=0", "experiment.eval_every_frames=0", "experiment.eval_episodes=1",
+             "experiment.checkpoint_every_frames=0", "progress=false", "logger=none")
+
+
+def recipe_config(recipe: str, overrides=()) -> TrainConfig:
+    """Policy3-G's checked training config under ``recipe`` and ``overrides``."""
+    return TrainConfig.from_config(make_train_config("policy3_g", recipe, overrides))
 
 
 def recipe_transitions(recipe: str):
@@ -45,11 +54,24 @@ def recipe_transitions(recipe: str):
     from flock_torchrl import FlockingEnv
     from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done
 
-    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, ["progress=false", "logger=none",
-                                                                          "reading=paper_fit"]))
+    cfg = recipe_config(recipe, ["progress=false", "logger=none", "reading=paper_fit"])
     env = FlockingEnv(cfg.train_scenario, num_envs=1, seed=0)
     seen = agentwise_done(env.rollout(200, break_when_any_done=False), env.n_agents)
     return cfg, env, seen.select(*TRANSITION_KEYS, strict=False).reshape(-1)
+
+
+def learner_batches(cfg: TrainConfig, env, seen, members: int, count: int = 8, device: str = "cpu",
+                    cudagraphs: bool = False):
+    """``(learner, batches)``: a solo learner (``members`` 1) or a population's (vmapped), and
+    ``count`` minibatches drawn from ``seen`` for it (``[batch_size]``, or ``[batch_size, members]``)."""
+    if members == 1:
+        learner = make_learner(env, cfg.algo, cfg.policy.critic_input, cudagraphs=cudagraphs)
+    else:
+        learner = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)),
+                                   cudagraphs=cudagraphs)
+    size = cfg.algo.batch_size
+    batches = [seen[torch.randint(0, seen.shape[0], (size * members,), device=device)] for _ in range(count)]
+    return learner, batches if members == 1 else [batch.reshape(size, members) for batch in batches]
 
 
 def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
@@ -58,16 +80,13 @@ def update_arithmetic(recipe: str, members: int) -> tuple[float, float]:
     The FLOPs are the matrix products of one member's update of Policy3-G under ``recipe`` (what
     ``torch.profiler`` counts with ``with_flops`` in a population of two, halved: the networks'
     linear layers, forward and backward); the rate is a ``[members, rows, 128] x [128, 128]``
-    batched product, ``rows`` the UAV rows of one minibatch, the hidden layers' shape, timed here. Their ratio bounds what any
-    batching of the members' updates can reach on this core."""
+    batched product, ``rows`` the UAV rows of one minibatch, the hidden layers' shape, timed here.
+    Their ratio bounds what any batching of the members' updates can reach on this core."""
     from torch.profiler import profile
-
-    from flock_torchrl.policies.learners import OffPolicyLearner
 
     cfg, env, seen = recipe_transitions(recipe)
     # Two members under vmap: the batched products (bmm) the population runs, counted once each.
-    learner = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, [0, 1])
-    batch = seen[torch.randint(0, seen.shape[0], (2 * cfg.algo.batch_size,))].reshape(cfg.algo.batch_size, 2)
+    learner, (batch,) = learner_batches(cfg, env, seen, 2, count=1)
     learner.update(batch)
     with profile(with_flops=True) as prof:
         learner.update(batch)
@@ -88,23 +107,20 @@ def run_row(recipe: str, members: int, frames: int, compile: str, folder: Path, 
     """One training run; its loop's member-updates/s and split, its set-up time (the run's wall
     time outside the loop, evaluation and checkpoints: envs, learner, collectors, first
     compilation), its peak memory (and the GPU's, on one)."""
-    overrides = [f"population={members}", f"experiment.max_frames={frames}", "experiment.max_episodes=0",
-                 "experiment.eval_every_frames=0", "experiment.eval_episodes=1", "experiment.checkpoint_every_frames=0",
-                 "progress=false", "logger=none", f"compile={compile}", "reading=paper_fit", f"device={device}",
-                 f"cudagraphs={cudagraphs}", f"reset_pool={reset_pool}"]
-    cfg = TrainConfig.from_config(make_train_config("policy3_g", recipe, overrides))
+    cfg = recipe_config(recipe, [f"population={members}", f"experiment.max_frames={frames}", *SHORT_RUN,
+                                 f"compile={compile}", "reading=paper_fit", f"device={device}",
+                                 f"cudagraphs={cudagraphs}", f"reset_pool={reset_pool}"])
     start = time.perf_counter()
     result = train(cfg, folder / f"{recipe}_{members}_{compile}_{device}_{cudagraphs}_{reset_pool}")
     wall = time.perf_counter() - start
     loop = sum(result.split.get(k, 0.0) for k in LOOP)
-    gpu = torch.cuda.max_memory_allocated() / 2**20 if device.startswith("cuda") else 0.0
     return {"recipe": recipe, "members": members, "compile": compile, "device": device, "cudagraphs": cudagraphs,
-            "reset_pool": reset_pool,
-            "updates": result.updates, "member_updates_per_s": members * result.updates / loop, "loop_s": loop,
+            "reset_pool": reset_pool, "updates": result.updates,
+            "member_updates_per_s": members * result.updates / loop, "loop_s": loop,
             "setup_s": wall - sum(result.split.values()),
             "split": {k: result.split.get(k, 0.0) / loop for k in LOOP if result.split.get(k, 0.0)},
             "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,   # Linux: KiB
-            "gpu_peak_mb": gpu}
+            "gpu_peak_mb": torch.cuda.max_memory_allocated() / 2**20 if device.startswith("cuda") else 0.0}
 
 
 def row_in_child(recipe: str, members: int, frames: int, compile: str, folder: Path, device: str,
@@ -128,29 +144,19 @@ def interleaved_updates(recipe: str, members: int, rounds: int = 5, block: int =
     ``block`` member-updates, ``rounds`` times: both sides see the same machine at the same
     minutes, which rows trained one after another in child processes do not (a shared
     machine's speed drifts by tens of per cent within minutes)."""
-    from flock_torchrl.policies.learners import make_learner
-    from flock_torchrl.policies.learners import OffPolicyLearner
-
     cfg, env, seen = recipe_transitions(recipe)
-    size = cfg.algo.batch_size
-    solo = make_learner(env, cfg.algo, cfg.policy.critic_input)
-    population = OffPolicyLearner(env, cfg.algo, cfg.policy.critic_input, list(range(members)))
-    solo_batches = [seen[torch.randint(0, seen.shape[0], (size,))] for _ in range(8)]
-    member_batches = [seen[torch.randint(0, seen.shape[0], (size * members,))].reshape(size, members)
-                      for _ in range(8)]
-    sides = {"solo": (solo.update, solo_batches, block), "population": (population.update, member_batches,
-                                                                          max(1, block // members))}
-    for update, batches, _ in sides.values():  # warm-up
+    sides = {name: (*learner_batches(cfg, env, seen, k), k) for name, k in (("solo", 1), ("population", members))}
+    for learner, batches, _ in sides.values():  # warm-up
         for batch in batches[:3]:
-            update(batch)
+            learner.update(batch)
     rates: dict[str, list[float]] = {name: [] for name in sides}
     for _ in range(rounds):
-        for name, (update, batches, calls) in sides.items():
+        for name, (learner, batches, k) in sides.items():
+            calls = max(1, block // k)
             start = time.perf_counter()
             for i in range(calls):
-                update(batches[i % len(batches)])
-            per_call = members if name == "population" else 1
-            rates[name].append(calls * per_call / (time.perf_counter() - start))
+                learner.update(batches[i % len(batches)])
+            rates[name].append(calls * k / (time.perf_counter() - start))
     return rates
 
 
@@ -161,7 +167,6 @@ def evaluation_line(recipe: str, members: int, episodes: int = 1) -> str:
     same episodes, in this process."""
     import copy
 
-    from flock_torchrl.policies.learners import OffPolicyLearner
     from flock_torchrl.run.rollout import evaluate, evaluate_members
 
     cfg, env, _ = recipe_transitions(recipe)
@@ -181,56 +186,43 @@ def evaluation_line(recipe: str, members: int, episodes: int = 1) -> str:
 
 def population_lines(frames: int = 3000, members: int = 10, recipes: str = "paper,fast",
                      print_each: bool = True, rates: dict | None = None) -> list[str]:
-    """The rows of every recipe, each line printed as soon as it is measured; ``rates``, if
-    given, receives each row's member-updates/s under ``(recipe, members, compile)``."""
-    lines = []
+    """The rows of every recipe, each line printed as soon as it is measured with ``print_each``;
+    ``rates``, if given, receives each row's member-updates/s under ``(recipe, members, compile)``."""
+    lines = Lines(print_each)
     rates = {} if rates is None else rates
-
-    def say(line: str) -> None:
-        lines.append(line)
-        if print_each:
-            print(line, flush=True)
-
-    devices = ["cpu"]  # the GPU's rows, captured, are benchmarks/gpu.py's
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in recipes.split(","):
             n = frames if recipe == "paper" else max(frames, 4096)
             mflop, peak = update_arithmetic(recipe, members)
-            line = (f"population {recipe:5s} cpu  arithmetic: {mflop:.0f} MFLOP of matmuls per member-update; this "
-                    f"core's batched matmul at the update's shape runs {peak:.1f} GFLOP/s, so no batching of the "
-                    f"updates passes {1000 * peak / mflop:.0f} member-updates/s of update time on one core")
-            say(line)
+            lines.say(f"population {recipe:5s} cpu  arithmetic: {mflop:.0f} MFLOP of matmuls per member-update; this "
+                      f"core's batched matmul at the update's shape runs {peak:.1f} GFLOP/s, so no batching of the "
+                      f"updates passes {1000 * peak / mflop:.0f} member-updates/s of update time on one core")
             alone = interleaved_updates(recipe, members)
             solo, pop = (statistics.median(alone[k]) for k in ("solo", "population"))
-            line = (f"population {recipe:5s} cpu  the update alone, interleaved in one process ({len(alone['solo'])} "
-                    f"rounds, medians): solo {solo:.0f} updates/s, population of {members} {pop:.0f} member-updates/s "
-                    f"= {pop / solo:.2f}x")
-            say(line)
-            for device in devices:
-                plan = [(1, "false")] + ([(1, "true")] if recipe == "paper" and device == "cpu" else []) \
-                    + [(members, "false")]
-                base = solo_mb = None
-                for k, compile in plan:
-                    r = row_in_child(recipe, k, n, compile, Path(tmp), device)
-                    rates[recipe, k, compile] = r["member_updates_per_s"]
-                    base = base or r["member_updates_per_s"]
-                    solo_mb = solo_mb or r["peak_mb"]
-                    in_update = r["member_updates_per_s"] / max(r["split"].get("update", 0.0), 1e-9)
-                    split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
-                    memory = (f"peak {r['peak_mb']:.0f} MB, {r['peak_mb'] / k:.0f} MB per member, each member past "
-                              f"the first {(r['peak_mb'] - solo_mb) / (k - 1):.0f} MB" if k > 1
-                              else f"peak {r['peak_mb']:.0f} MB")
-                    line = (f"population {recipe:5s} {device:4s} members {r['members']:2d} compile={r['compile']:5s}: "
-                            f"{r['member_updates_per_s']:8.1f} member-updates/s ({r['member_updates_per_s'] / base:.2f}x "
-                            f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; the update alone "
-                            f"{in_update:.0f} member-updates/s, {in_update * mflop / 1000:.1f} GFLOP/s; {memory})")
-                    say(line)
+            lines.say(f"population {recipe:5s} cpu  the update alone, interleaved in one process "
+                      f"({len(alone['solo'])} rounds, medians): solo {solo:.0f} updates/s, population of {members} "
+                      f"{pop:.0f} member-updates/s = {pop / solo:.2f}x")
+            # The CPU's rows (the GPU's, captured, are benchmarks/gpu.py's); the paper recipe's solo run compiled too.
+            base = solo_mb = None
+            for k, compile in [(1, "false")] + ([(1, "true")] if recipe == "paper" else []) + [(members, "false")]:
+                r = row_in_child(recipe, k, n, compile, Path(tmp), "cpu")
+                rates[recipe, k, compile] = r["member_updates_per_s"]
+                base = base or r["member_updates_per_s"]
+                solo_mb = solo_mb or r["peak_mb"]
+                in_update = r["member_updates_per_s"] / max(r["split"].get("update", 0.0), 1e-9)
+                split = ", ".join(f"{key} {100 * v:.0f} %" for key, v in r["split"].items())
+                memory = (f"peak {r['peak_mb']:.0f} MB, {r['peak_mb'] / k:.0f} MB per member, each member past "
+                          f"the first {(r['peak_mb'] - solo_mb) / (k - 1):.0f} MB" if k > 1
+                          else f"peak {r['peak_mb']:.0f} MB")
+                lines.say(f"population {recipe:5s} cpu  members {r['members']:2d} compile={r['compile']:5s}: "
+                          f"{r['member_updates_per_s']:8.1f} member-updates/s ({r['member_updates_per_s'] / base:.2f}x "
+                          f"the eager solo row; {r['updates']} updates in {r['loop_s']:.1f} s; {split}; the update "
+                          f"alone {in_update:.0f} member-updates/s, {in_update * mflop / 1000:.1f} GFLOP/s; {memory})")
             if recipe == "paper":
-                say(evaluation_line(recipe, members))
+                lines.say(evaluation_line(recipe, members))
                 from benchmarks.collection import collection_lines  # the solo loop's collection, per step
-                for line in collection_lines(compile=True, steps=300 if frames >= 3000 else 100,
-                                             rounds=7 if frames >= 3000 else 3):
-                    say(line)
+                lines.say(*collection_lines(compile=True, steps=300 if frames >= 3000 else 100,
+                                            rounds=7 if frames >= 3000 else 3))
     return lines
 
 

@@ -21,7 +21,8 @@ if not __package__:  # `python benchmarks/reset.py`: the repository's root, so `
 import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 
-from benchmarks.timing import paired  # noqa: E402
+from benchmarks.step import stepper  # noqa: E402
+from benchmarks.timing import Lines, paired  # noqa: E402
 from flock_torchrl import FlockingEnv  # noqa: E402
 
 
@@ -37,19 +38,6 @@ def resetter(env: FlockingEnv, k: int, repeat: int):
     return go
 
 
-def stepper(env: FlockingEnv, repeat: int):
-    """A callable taking ``repeat`` eager steps of every world from one fixed state (no episode ends)."""
-    td = env.reset()
-    td.set(("agents", "action"), torch.zeros(env.num_envs, env.n_agents, 2, device=env.device))
-    world = env.world
-
-    def go() -> None:
-        for _ in range(repeat):
-            env.world = world
-            env.step(td)
-    return go
-
-
 def rollout(env: FlockingEnv, steps: int):
     """A callable taking ``steps`` random-action ``step_and_maybe_reset`` steps; it counts the
     worlds that ended."""
@@ -59,7 +47,8 @@ def rollout(env: FlockingEnv, steps: int):
     def go() -> None:
         td = state["td"]
         for _ in range(steps):
-            td.set(("agents", "action"), torch.rand(env.num_envs, env.n_agents, 2, generator=gen, device=env.device) * 2 - 1)
+            action = torch.rand(env.num_envs, env.n_agents, 2, generator=gen, device=env.device)
+            td.set(("agents", "action"), action * 2 - 1)
             out, td = env.step_and_maybe_reset(td)
             state["ended"] += int(out["next", "done"].sum())
             state["steps"] += 1
@@ -70,23 +59,18 @@ def rollout(env: FlockingEnv, steps: int):
 def reset_lines(batch: int = 1024, rounds: int = 3, print_each: bool = True) -> list[str]:
     """The rows: reset of 2, 32 and all of ``batch`` worlds against one eager step, then the
     random-action rollout of the bare world against Policy3-G's."""
-    lines: list[str] = []
-
-    def emit(line: str) -> None:
-        lines.append(line)
-        if print_each:
-            print(line, flush=True)
-
+    lines = Lines(print_each)
     env = FlockingEnv(num_envs=batch, reading="paper_fit", policy_id="policy3_g")
     repeat = 5
     candidates = {"step": stepper(env, repeat)}
-    candidates.update({f"reset {k}": resetter(env, k, repeat) for k in sorted({k for k in (2, 32) if k < batch} | {batch})})
+    for k in sorted({k for k in (2, 32) if k < batch} | {batch}):
+        candidates[f"reset {k}"] = resetter(env, k, repeat)
     best = paired(candidates, rounds)
     step_ms = 1e3 * best.pop("step") / repeat
-    emit(f"partial reset, B = {batch}: one eager step of every world {step_ms:.2f} ms")
+    lines.say(f"partial reset, B = {batch}: one eager step of every world {step_ms:.2f} ms")
     for name, seconds in best.items():
         ms = 1e3 * seconds / repeat
-        emit(f"partial reset, B = {batch}: {name:>10s} worlds {ms:8.2f} ms ({ms / step_ms:.2f} steps)")
+        lines.say(f"partial reset, B = {batch}: {name:>10s} worlds {ms:8.2f} ms ({ms / step_ms:.2f} steps)")
     steps = 10
     worlds = {name: FlockingEnv(num_envs=batch, reading="paper_fit", policy_id=policy)
               for name, policy in (("bare world (no instinct)", "policy1"), ("Policy3-G's world", "policy3_g"))}
@@ -97,8 +81,8 @@ def reset_lines(batch: int = 1024, rounds: int = 3, print_each: bool = True) -> 
         state = runs[name][1]
         rate = steps * batch / seconds
         base = base or rate
-        emit(f"random actions, B = {batch}, {name:26s}: {rate:9.0f} env-steps/s ({rate / base:.2f}x the first row; "
-             f"{state['ended'] / state['steps']:.2f} worlds ending per step)")
+        lines.say(f"random actions, B = {batch}, {name:26s}: {rate:9.0f} env-steps/s ({rate / base:.2f}x the first "
+                  f"row; {state['ended'] / state['steps']:.2f} worlds ending per step)")
     return lines
 
 

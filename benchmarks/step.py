@@ -22,17 +22,20 @@ if not __package__:  # `python benchmarks/step.py`: the repository's root, so `b
 
 import torch  # noqa: E402
 
+from benchmarks.rows import vmas_env  # noqa: E402
 from benchmarks.timing import paired  # noqa: E402  best of alternated rounds, after a warm-up
 from flock_torchrl import FlockingEnv  # noqa: E402
 from flock_torchrl.world.state import STATE_KEYS  # noqa: E402
 
 
 def stepper(env: FlockingEnv, steps: int, api: str = "step"):
-    """A callable taking ``steps`` steps from one fixed state: ``api`` ``step`` (TorchRL's
-    ``env.step``), ``_step`` (the env's own step) or ``advance`` (the pure step function, with the episode summary)."""
+    """A callable taking ``steps`` steps from one fixed state under fixed random actions (of the
+    world's dimension): ``api`` ``step`` (TorchRL's ``env.step``), ``_step`` (the env's own step) or
+    ``advance`` (the pure step function, with the episode summary)."""
     td = env.reset()
     gen = torch.Generator().manual_seed(0)
-    td.set(("agents", "action"), torch.rand(env.num_envs, env.n_agents, 2, generator=gen) * 2 - 1)
+    action = torch.rand(env.num_envs, env.n_agents, env.cfg.dims, generator=gen) * 2 - 1
+    td.set(("agents", "action"), action.to(env.device))
     world = env.world
 
     def go() -> None:
@@ -52,13 +55,7 @@ def stepper(env: FlockingEnv, steps: int, api: str = "step"):
 def vmas_stepper(num_envs: int, steps: int):
     """TorchRL's ``VmasEnv("flocking", n_agents=5)`` taking ``steps`` steps with fixed random
     actions (VMAS keeps stepping finished worlds), or ``None`` without vmas."""
-    try:
-        from torchrl.envs import VmasEnv
-    except ImportError:
-        return None
-    try:
-        env = VmasEnv("flocking", num_envs=num_envs, n_agents=5, continuous_actions=True, device="cpu", seed=0)
-    except Exception:  # vmas is the optional `bench` extra
+    if (env := vmas_env(num_envs)) is None:
         return None
     td = env.rand_action(env.reset())
 

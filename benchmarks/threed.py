@@ -20,9 +20,8 @@ from pathlib import Path
 if not __package__:  # `python benchmarks/threed.py`: the repository's root, so `benchmarks` imports
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import torch  # noqa: E402
-
-from benchmarks.timing import paired  # noqa: E402
+from benchmarks.step import stepper  # noqa: E402
+from benchmarks.timing import Lines, paired  # noqa: E402
 from flock_torchrl import FlockingEnv  # noqa: E402
 
 LIFTED = {"dims": 3, "climb_max": 0.0, "laser_rings": [0.0], "spawn_height": 0.0, "spawn_altitude": [10.0, 10.0],
@@ -31,49 +30,31 @@ WORLDS = (("2-D training scenario", "train", {}), ("lifted into 3-D, one ring", 
           ("train3d, three rings", "train3d", {}))
 
 
-def space_stepper(env: FlockingEnv, steps: int):
-    """A callable taking ``steps`` steps of ``env`` from one fixed state with fixed random actions
-    of the world's dimension."""
-    td = env.reset()
-    gen = torch.Generator().manual_seed(0)
-    td.set(("agents", "action"), torch.rand(env.num_envs, env.n_agents, env.cfg.dims, generator=gen) * 2 - 1)
-    world = env.world
-
-    def go() -> None:
-        for _ in range(steps):
-            env.world = world
-            env._step(td)
-    return go
-
-
 def threed_lines(batch: int = 256, n_uavs: int = 5, rounds: int = 3, compiled: bool = True, steps: int = 10,
                  print_each: bool = True) -> list[str]:
     """The rows: microseconds per UAV-step of each of :data:`WORLDS`, and the ratio to the 2-D one."""
     envs = {name: FlockingEnv(scenario, num_envs=batch, seed=0, reading="paper_fit", policy_id="policy3_g",
                               n_uavs=n_uavs, compile_step=compiled, check_actions=False, **overrides)
             for name, scenario, overrides in WORLDS}
-    best = paired({name: space_stepper(env, steps) for name, env in envs.items()}, rounds)
+    best = paired({name: stepper(env, steps, "_step") for name, env in envs.items()}, rounds)
     how = "compiled" if compiled else "eager"
     base = None
-    lines = []
+    lines = Lines(print_each)
     for name, seconds in best.items():
         us = 1e6 * seconds / (steps * batch * n_uavs)
         base = base or us
-        line = (f"3-D step ({how}), B = {batch}, N = {n_uavs}, {name:28s}: {us:8.3f} us per UAV-step "
-                f"({us / base:.2f}x the 2-D step)")
-        lines.append(line)
-        if print_each:
-            print(line, flush=True)
+        lines.say(f"3-D step ({how}), B = {batch}, N = {n_uavs}, {name:28s}: {us:8.3f} us per UAV-step "
+                  f"({us / base:.2f}x the 2-D step)")
     return lines
 
 
-def main(argv: list[str] | None = None) -> None:
+def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--uavs", type=int, default=5)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--eager", action="store_true", help="time the eager step instead of the compiled one")
-    args = parser.parse_args(argv)
+    args = parser.parse_args()
     threed_lines(args.batch, args.uavs, args.rounds, compiled=not args.eager)
 
 

@@ -19,9 +19,8 @@
 Timings alternate the candidates and keep each one's best of several repetitions, so load
 from other processes hits both sides alike; the ratios are what to read.
 
-A tool of the repository, not of the installed package (``benchmarks/`` is not in the wheel;
-nothing in ``flock_torchrl`` imports it): ``make benchmark`` runs :mod:`benchmarks.run`, a Hydra
-app on ``benchmarks/conf/benchmark.yaml`` whose config is :class:`BenchmarkConfig`.
+``make benchmark`` runs :mod:`benchmarks.run`, a Hydra app on ``benchmarks/conf/benchmark.yaml``
+whose config is :class:`BenchmarkConfig` (a tool of the repository: see :mod:`benchmarks`).
 """
 
 from __future__ import annotations
@@ -44,9 +43,9 @@ from flock_torchrl.policies.learners import OffPolicyLearner, compiled
 from flock_torchrl.policies.models import ACTION, LOG_PROB
 from flock_torchrl.run.batches import TRANSITION_KEYS, agentwise_done
 from flock_torchrl.world.env import FlockingEnv
-from benchmarks.gpu import gpu_lines, projection_line
+from benchmarks.gpu import gpu_lines, projection_line, synchronize
 from benchmarks.host_reads import host_read_lines, launch_lines
-from benchmarks.population import population_lines
+from benchmarks.population import SHORT_RUN, population_lines
 from benchmarks.reset import reset_lines
 from benchmarks.rows import Row, env_rows, format_rows, random_stepper
 from benchmarks.threed import threed_lines
@@ -90,14 +89,10 @@ def scale_rows(total: int = 5120, sizes=(5, 20, 50, 100), steps: int = 4, repeat
     envs = {n: FlockingEnv("train", max(1, total // n), device, 0, reading=reading, policy_id="policy3_g", n_uavs=n)
             for n in sizes}
     best = paired({n: random_stepper(env, steps) for n, env in envs.items()}, repeat)
-    rate = {n: envs[n].num_envs * n * steps / best[n] for n in sizes}
-    rows = []
-    for n in sizes:
-        env = envs[n]
-        per_uav = env.world.bytes() / (env.num_envs * n)
-        rows.append(Row(f"swarm N={n}, B={env.num_envs} ({reading}; vs N={sizes[0]})", rate[n], rate[sizes[0]],
-                        "UAV-steps/s", f"world state {per_uav:.0f} B/UAV"))
-    return rows
+    uavs = {n: env.num_envs * n for n, env in envs.items()}
+    rate = {n: uavs[n] * steps / best[n] for n in sizes}
+    return [Row(f"swarm N={n}, B={envs[n].num_envs} ({reading}; vs N={sizes[0]})", rate[n], rate[sizes[0]],
+                "UAV-steps/s", f"world state {envs[n].world.bytes() / uavs[n]:.0f} B/UAV") for n in sizes]
 
 
 # ---------------------------------------------------------------------------- learner
@@ -166,16 +161,17 @@ class PreviousSACUpdate:
 
 
 def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, repeat: int = 3,
-                 device: str = "cpu", compile_loss: bool = True) -> list[Row]:
+                 device: str = "cpu") -> list[Row]:
+    """SAC updates/s, ours eager and with the compiled loss, against :class:`PreviousSACUpdate`;
+    on a CPU also the compiled loss's scalar kernels against inductor's default (vectorised) ones."""
     rows = []
     for batch_uav, recipe in batches:
         cfg = algo_config(compose("train", [f"experiment={recipe}"]).algo)
         env, samples = replay_batches(batch_uav, updates, device)
         torch.manual_seed(0)
-        candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": OffPolicyLearner(env, cfg, "state")}
-        if compile_loss:
-            candidates["compiled"] = OffPolicyLearner(env, cfg, "state", compile=True)
-        if compile_loss and device == "cpu":  # inductor's default (vectorised) CPU kernels
+        candidates = {"previous": PreviousSACUpdate(env, cfg), "eager": OffPolicyLearner(env, cfg, "state"),
+                      "compiled": OffPolicyLearner(env, cfg, "state", compile=True)}
+        if device == "cpu":
             vectorised = candidates["compiled, vectorised kernels"] = OffPolicyLearner(env, cfg, "state")
             vectorised.loss_fn = compiled(vectorised.loss, True, options={})
 
@@ -183,21 +179,19 @@ def learner_rows(batches=((1280, "fast"), (128, "paper")), updates: int = 12, re
             def go() -> None:
                 for batch in samples:
                     learner.update(batch)
-                if device.startswith("cuda"):
-                    torch.cuda.synchronize()
+                synchronize(device)
             return go
 
         for learner in candidates.values():  # compile (and warm up) outside the timed rounds
             for batch in samples[:3]:
                 learner.update(batch)
         best = paired({name: run(learner) for name, learner in candidates.items()}, repeat)
-        for name in ("eager", "compiled"):
-            if name in best:
-                rows.append(Row(f"SAC updates, batch {batch_uav} UAV transitions ({recipe}; {name} vs previous)",
-                                updates / best[name], updates / best["previous"], "updates/s"))
-        if compile_loss and device == "cpu":  # why the losses compile to scalar CPU kernels (learners.py)
+        rate = {name: updates / seconds for name, seconds in best.items()}
+        rows += [Row(f"SAC updates, batch {batch_uav} UAV transitions ({recipe}; {name} vs previous)", rate[name],
+                     rate["previous"], "updates/s") for name in ("eager", "compiled")]
+        if device == "cpu":  # why the losses compile to scalar CPU kernels (learners.py)
             rows.append(Row(f"SAC updates, batch {batch_uav} ({recipe}; scalar vs vectorised compiled kernels)",
-                            updates / best["compiled"], updates / best["compiled, vectorised kernels"], "updates/s"))
+                            rate["compiled"], rate["compiled, vectorised kernels"], "updates/s"))
     return rows
 
 
@@ -223,10 +217,8 @@ def loop_rows(frames: int = 3000, device: str = "cpu") -> tuple[list[Row], list[
     rates, splits = {}, []
     for name, compile in (("eager", False), ("compiled", True)):
         def run(n: int):
-            cfg = make_train_config("policy3_g", "paper", [
-                f"experiment.max_frames={n}", "experiment.max_episodes=0", "experiment.eval_every_frames=0",
-                "experiment.checkpoint_every_frames=0", "experiment.eval_episodes=1", "progress=false",
-                "logger=none", f"compile={str(compile).lower()}", f"device={device}"])
+            cfg = make_train_config("policy3_g", "paper", [f"experiment.max_frames={n}", *SHORT_RUN,
+                                                           f"compile={str(compile).lower()}", f"device={device}"])
             with tempfile.TemporaryDirectory() as tmp:
                 return train(cfg, tmp)
 
@@ -248,10 +240,9 @@ def run_all(quick: bool = False, device: str = "cpu", notes: list[str] | None = 
     rows += scale_rows(repeat=repeat, device=device)
     rows += learner_rows(updates=6 if quick else 30, repeat=2 if quick else 5, device=device)
     loop, splits = loop_rows(frames=600 if quick else 3000, device=device)
-    rows += loop
     if notes is not None:
         notes += splits
-    return rows
+    return rows + loop
 
 
 def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
@@ -260,33 +251,32 @@ def benchmark_app(cfg: BenchmarkConfig, out_dir: Path) -> None:
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     load = os.getloadavg()[0]
+    quick = bool(cfg.quick)
     notes: list[str] = []
-    text = format_rows(run_all(quick=bool(cfg.quick), device=str(cfg.device), notes=notes))
-    text += "\n" + "\n".join(notes)
+    lines = [format_rows(run_all(quick=quick, device=str(cfg.device), notes=notes)), *notes]
     # Populations against solo runs, the whole training loop (benchmarks/population.py).
     rates: dict = {}
-    text += "\n" + "\n".join(population_lines(frames=400 if cfg.quick else 3000, print_each=False, rates=rates))
+    lines += population_lines(frames=400 if quick else 3000, print_each=False, rates=rates)
     members = max(k for _, k, _ in rates)
-    text += "\n" + projection_line("CPU, 1 thread" if cfg.threads == 1 else "CPU", rates["paper", members, "false"],
-                                   rates["fast", members, "false"], members)
+    lines.append(projection_line("CPU, 1 thread" if cfg.threads == 1 else "CPU", rates["paper", members, "false"],
+                                 rates["fast", members, "false"], members))
     # The GPU's rows and projection, where CUDA exists (benchmarks/gpu.py).
     if torch.cuda.is_available():
-        text += "\n" + "\n".join(gpu_lines(frames=400 if cfg.quick else 3000))
+        lines += gpu_lines(frames=400 if quick else 3000)
     else:
-        text += "\nGPU rows: no CUDA device here (benchmarks/gpu.py runs them where torch.cuda.is_available())"
+        lines.append("GPU rows: no CUDA device here (benchmarks/gpu.py runs them where torch.cuda.is_available())")
     # Host reads per iteration of the loop, what makes a GPU wait (benchmarks/host_reads.py).
     for members, pool in ((1, 0), (1, 256), (10, 256)):
-        text += "\n" + "\n".join(host_read_lines("paper", members, iterations=50 if cfg.quick else 200,
-                                                  overrides=(f"reset_pool={pool}",)))
+        lines += host_read_lines("paper", members, iterations=50 if quick else 200, overrides=(f"reset_pool={pool}",))
     # The kernels launched one by one per iteration, uncaptured against captured (a GPU's launch cost).
-    text += "\n" + "\n".join(launch_lines("paper", iterations=50 if cfg.quick else 200))
+    lines += launch_lines("paper", iterations=50 if quick else 200)
     # Partial resets against a step, and worlds ending often against rarely (benchmarks/reset.py).
-    text += "\n" + "\n".join(reset_lines(batch=256 if cfg.quick else 1024, print_each=False))
+    lines += reset_lines(batch=256 if quick else 1024, print_each=False)
     # The 3-D step against the 2-D one, per UAV-step (benchmarks/threed.py).
-    text += "\n" + "\n".join(threed_lines(batch=64 if cfg.quick else 1024, rounds=1 if cfg.quick else 3,
-                                           compiled=not cfg.quick, print_each=False))
+    lines += threed_lines(batch=64 if quick else 1024, rounds=1 if quick else 3, compiled=not quick, print_each=False)
+    text = "\n".join(lines)
     print(text, flush=True)
-    write_text(out_dir / "benchmark.md", benchmark_page(text, bool(cfg.quick), int(cfg.threads or 0), load))
+    write_text(out_dir / "benchmark.md", benchmark_page(text, quick, int(cfg.threads or 0), load))
 
 
 def benchmark_page(text: str, quick: bool, threads: int, load: float) -> str:

@@ -1,4 +1,4 @@
-"""Timing two or more candidates fairly on a loaded machine."""
+"""Timing two or more candidates fairly on a loaded machine, and the lines a benchmark prints."""
 
 from __future__ import annotations
 
@@ -20,4 +20,17 @@ def paired(candidates: dict[str, Callable[[], None]], repeat: int = 3) -> dict[s
     return best
 
 
-__all__ = ["paired"]
+class Lines(list):
+    """A benchmark's lines as they are measured, each also printed at once with ``echo``."""
+
+    def __init__(self, echo: bool) -> None:
+        super().__init__()
+        self.echo = echo
+
+    def say(self, *new: str) -> None:
+        self.extend(new)
+        if self.echo:
+            print(*new, sep="\n", flush=True)
+
+
+__all__ = ["Lines", "paired"]
