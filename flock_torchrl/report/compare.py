@@ -75,16 +75,14 @@ def episodes_per_checkpoint(row: Mapping[str, Any]) -> float:
     return n / k if k > 0 else n
 
 
-def _cell(m: str, value: float) -> str:
+def _cell(m: str, value: float, sign: str = "", points: str = "%") -> str:
     if math.isnan(value):
         return "n/a"
-    return f"{100 * value:.1f} %" if m.endswith("_rate") else f"{value:.3f}"
+    return f"{100 * value:{sign}.1f} {points}" if m.endswith("_rate") else f"{value:{sign}.3f}"
 
 
 def _delta(m: str, value: float) -> str:
-    if math.isnan(value):
-        return "n/a"
-    return f"{100 * value:+.1f} pp" if m.endswith("_rate") else f"{value:+.3f}"
+    return _cell(m, value, "+", "pp")
 
 
 def tolerance_text(tolerance: Mapping[str, float]) -> str:

@@ -7,14 +7,11 @@ Two tools, both on the evaluation protocol (seeded batched episodes, determinist
   UAV that hit: what its laser and camera saw, how many UAVs were packed around it, what the
   repulsion instinct would command (split into its UAV and obstacle parts) and what the policy
   itself asked for, each projected on the obstacle's outward normal (:func:`crash_forensics`).
-* The variants (:data:`.variants.VARIANTS`) separate the causes at evaluation time, without retraining
-  and without touching the world: the paper's instinct; the instinct off; its tangential term
-  off (Eq. 28, as Policy5-G's); the actor fed the
-  critic's all-round camera slots instead of its own; and instincts that hold in a crowd,
-  applied by a wrapper (:class:`.variants.InstinctWrapper`) in a world whose own instinct is off and whose
-  actions are velocity commands: the paper's instinct re-applied (a control: it must give the
-  built-in instinct's episodes), over the nearest ``k`` visible UAVs only, with the UAV part
-  saturated, and one that never pushes toward the obstacle the laser sees.
+* The variants (:data:`.variants.VARIANTS`, each described there) separate the causes at evaluation
+  time, without retraining and without touching the world: the paper's instinct, off, or without its
+  tangential term (Eq. 28, as Policy5-G's); the actor fed the critic's all-round camera slots; and
+  instincts that hold in a crowd, applied by a wrapper (:class:`.variants.InstinctWrapper`), the
+  paper's one re-applied as a control (it must give the built-in instinct's episodes).
 
 Rates come with exact (Clopper-Pearson) binomial 95 % intervals (:func:`binomial_ci`).
 """
@@ -120,11 +117,10 @@ def crash_forensics(steps: Mapping[str, torch.Tensor], crash_position: torch.Ten
     who = crasher.repeat_interleave(w)
     rows = torch.arange(e * w)
     neighbours = near_neighbours(position, heading, cfg.camera_range, cfg.half_fov)[0]
-    _, command, uav, wall = crowd_instinct(position, heading, goal, scan, neighbours, gain=cfg.rep_gain,
-                                          r0=cfg.rep_range, safe_distance=cfg.safe_distance,
-                                          tangential=cfg.tangential, mode="paper")
-    radial = crowd_instinct(position, heading, goal, scan, neighbours, gain=cfg.rep_gain, r0=cfg.rep_range,
-                            safe_distance=cfg.safe_distance, tangential=False, mode="paper")[2]  # Eq. 26 alone
+    instinct = dict(gain=cfg.rep_gain, r0=cfg.rep_range, safe_distance=cfg.safe_distance, mode="paper")
+    _, command, uav, wall = crowd_instinct(position, heading, goal, scan, neighbours, tangential=cfg.tangential,
+                                          **instinct)
+    radial = crowd_instinct(position, heading, goal, scan, neighbours, tangential=False, **instinct)[2]  # Eq. 26 alone
     own = action_to_command(flat(steps["action"]), heading)
     me = position[rows, who]  # [E W, 2]
     normal = outward_normal(me[:, None], obs_ew)[:, 0]
@@ -270,9 +266,6 @@ def summarise_crashes(crashes: Mapping[str, torch.Tensor]) -> dict[str, float]:
     return out
 
 
-__all__ = ["CellResult", "along", "binomial_ci", "crash_forensics", "outward_normal", "run_cell", "summarise_crashes"]
-
-
 # ---------------------------------------------------------------------------- the grid
 CRASH_COLUMNS = ("n_crashes", "crash_time", "share_crash_first_10s", "d_scan1_last", "nearest_uav_last",
                  "uavs_within_2m_last", "uavs_within_r0_last", "visible_uavs_last", "camera_slots_filled_last",
@@ -360,25 +353,17 @@ def crash_table(rows: Sequence[dict]) -> list[str]:
             "UAVs < 2 m", "UAVs < r0", "visible", "beam hidden", "heading . n", "instinct on (1 s)", "v_rep (m/s)",
             "UAV part (m/s)", "obstacle part (m/s)", "v_rep . n (m/s)", "UAV part . n", "its radial (Eq. 26) . n", "obstacle part . n",
             "v_rep into obstacle", "policy cmd . n (m/s)", "policy into obstacle")
-    keys = ("n_crashes", "crash_time", "share_crash_first_10s", "d_scan1_last", "nearest_uav_last",
-            "uavs_within_2m_last", "uavs_within_r0_last", "visible_uavs_last", "share_beam_hidden_by_uav_last",
-            "heading_cos_last", "instinct_on_window", "instinct_speed_last", "instinct_uav_speed_last", "instinct_obstacle_speed_last",
-            "instinct_outward_last", "instinct_uav_outward_last", "instinct_uav_radial_outward_last",
-            "instinct_obstacle_outward_last",
-            "share_instinct_pushes_in_last", "policy_outward_last", "share_policy_pushes_in_last")
-    shares = {"share_crash_first_10s", "share_beam_hidden_by_uav_last", "instinct_on_window",
-              "share_instinct_pushes_in_last", "share_policy_pushes_in_last"}
+    keys = [k for k in CRASH_COLUMNS if k not in ("camera_slots_filled_last", "instinct_cos_last",
+                                                    "share_uav_part_pushes_in_last", "policy_cos_last")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [r["policy"], r["scenario"], str(r["n_uavs"])]
         for k in keys:
             v = r[k]
-            cells.append(f"{int(v)}" if k == "n_crashes" else f"{100 * v:.0f} %" if k in shares else f"{v:.2f}")
+            share = k.startswith("share_") or k == "instinct_on_window"
+            cells.append(f"{int(v)}" if k == "n_crashes" else f"{100 * v:.0f} %" if share else f"{v:.2f}")
         lines.append("| " + " | ".join(cells) + " |")
     return lines
-
-
-__all__ += ["CRASH_COLUMNS", "crash_rows", "crash_table", "diagnose", "pooled", "rate_rows", "rate_table"]
 
 
 # ---------------------------------------------------------------------------- the app
@@ -445,4 +430,6 @@ def diagnose_app(cfg: Any, out_dir: str | Path, log: Callable[[str], None] = pri
     return cells
 
 
-__all__ += ["cell_bytes", "check_diagnosis", "diagnose_app", "diagnosed_checkpoints"]
+__all__ = ["CRASH_COLUMNS", "CellResult", "along", "binomial_ci", "cell_bytes", "check_diagnosis", "crash_forensics",
+           "crash_rows", "crash_table", "diagnose", "diagnose_app", "diagnosed_checkpoints", "outward_normal", "pooled",
+           "rate_rows", "rate_table", "run_cell", "summarise_crashes"]

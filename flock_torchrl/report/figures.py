@@ -3,12 +3,9 @@
 Drawing one instant lives in :mod:`flock_torchrl.world.frame`; this module draws whole
 episodes and grids of them, with matplotlib's object API (headless, no global state).
 
-* :func:`plot_trajectory` — one episode like the paper's Fig. 5: every UAV's path, the swarm
-  as triangles at a few times, obstacles (moving ones at those times), goal.
-* :func:`save_animation` — one episode as a GIF.
-* :func:`plot_reward_curves` — training reward per policy, mean and 95 % band every 100
-  episodes (paper Fig. 4), from the training curves the checkpoints carry.
-* :func:`make_figures` — Fig. 4, 5 and 6 of one reading into a folder (``scripts/figures.py``).
+:func:`plot_trajectory` draws one episode as Fig. 5 does, :func:`save_animation` one as a GIF,
+:func:`plot_reward_curves` the training reward of Fig. 4 (from the curves the checkpoints carry),
+and :func:`make_figures` Fig. 4, 5 and 6 of one reading into a folder (``scripts/figures.py``).
 """
 
 from __future__ import annotations
@@ -42,8 +39,7 @@ def save_figure(fig: Figure, path: str | os.PathLike) -> Path:
 
 
 def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | os.PathLike | None = None,
-                    title: str | None = None, ax: Any = None, n_snapshots: int = 5,
-                    extent: tuple[float, float, float, float] | None = None) -> Figure:
+                    title: str | None = None, ax: Any = None, n_snapshots: int = 5) -> Figure:
     """One episode like the paper's Fig. 5: every UAV's path, the swarm as triangles at
     ``n_snapshots`` evenly spaced times (labelled ``t = ... s``), static obstacles, moving
     obstacles at those same times, the goal.
@@ -53,14 +49,11 @@ def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | o
             :func:`~flock_torchrl.run.evaluation.rollout_episode`), cut at the env's first done.
         env: the env that produced it (for its config).
         path: save a PNG there (atomically) when given.
-        ax: draw into this axes (a panel of a grid) instead of a new figure.
-
-    Returns:
-        the figure.
+        ax: draw into this axes (a panel of a grid) instead of a new figure (returned either way).
     """
     cfg = env.cfg
     states = rollout_states(rollout_td, env.cfg, env_index)
-    extent = extent or world_extent(cfg, states)
+    extent = world_extent(cfg, states)
     if ax is None:
         fig = Figure(figsize=(5, 5), dpi=DPI)
         ax = fig.add_subplot(1, 1, 1)
@@ -89,8 +82,8 @@ def plot_trajectory(rollout_td: Any, env: Any, env_index: int = 0, path: str | o
     return fig
 
 
-def save_animation(rollout_td: Any, env: Any, path: str | os.PathLike, env_index: int = 0, fps: float | None = None,
-                   size: int | tuple[int, int] = 400, stride: int = 1, show_fov: bool = True) -> Path:
+def save_animation(rollout_td: Any, env: Any, path: str | os.PathLike, env_index: int = 0,
+                   size: int | tuple[int, int] = 400, stride: int = 1) -> Path:
     """One episode of a rollout as a GIF (one frame per ``stride`` steps, fixed extent)."""
     import imageio.v2 as imageio
 
@@ -102,8 +95,8 @@ def save_animation(rollout_td: Any, env: Any, path: str | os.PathLike, env_index
     idx = list(range(0, len(states), stride))
     if idx[-1] != len(states) - 1:
         idx.append(len(states) - 1)
-    frames = [frame_image(env.cfg, states[t], extent, height, width, show_fov, f"t = {t * env.cfg.dt:.1f} s") for t in idx]
-    fps = fps or env.metadata.get("render_fps", 5) * stride
+    frames = [frame_image(env.cfg, states[t], extent, height, width, True, f"t = {t * env.cfg.dt:.1f} s") for t in idx]
+    fps = env.metadata.get("render_fps", 5) * stride
     return atomic_write(path, lambda tmp: imageio.mimsave(tmp, frames, format="GIF", duration=1000.0 / fps,
                                                           loop=0))
 

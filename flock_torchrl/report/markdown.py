@@ -1,10 +1,5 @@
 """The tables as markdown: the full tables (ours, the paper's, the difference), their headers,
-the README-sized summary, and the claims.
-
-:func:`render_tables` (re)writes every ``table<k>.md`` of a folder from its CSV, with the
-reading's fidelity score over the Tables III and IV found there, plus ``fidelity.md`` and
-``summary.md``.
-"""
+the README-sized summary and the claims, all (re)written from the CSVs by :func:`render_tables`."""
 
 from __future__ import annotations
 
@@ -38,8 +33,6 @@ def claims_markdown(rows: Sequence[Mapping[str, Any]], recipe: str = "") -> list
         lines.append(f"| {v['claim']} | {fmt(v['paper'])} | {fmt(v['ours'], v['ours_partial'])} | "
                      f"{v['metric']}: {values} |")
     return lines + [""]
-
-
 
 
 def _pm(mean: float, std: float) -> str:
@@ -90,6 +83,7 @@ def markdown_table(table: int, rows: Sequence[Mapping[str, Any]], header: str = 
 
 EXTRA_NOTE = ("not one of the paper's rows (the paper recipe's run or a contender): evaluated under the same "
               "protocol, outside the fidelity score and the claims.")
+TABLE3_COLUMNS = "success % | safe_success % | d_min_uav (m) | d_min_obs (m) | d_c (m) | t_goal (s) |"
 
 
 def table_header(table: int, reading: str, episodes: int, seed: int, score: Fidelity) -> str:
@@ -124,8 +118,7 @@ def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: s
     and the claims under each recipe."""
     lines = [f"# Summary, reading `{reading}`", "", f"{score}.", ""]
     if 3 in rows:
-        lines += ["**Table III, training scenario** (ours / paper):", "",
-                  "| policy | success % | safe_success % | d_min_uav (m) | d_min_obs (m) | d_c (m) | t_goal (s) |",
+        lines += ["**Table III, training scenario** (ours / paper):", "", f"| policy | {TABLE3_COLUMNS}",
                   "|---|---|---|---|---|---|---|"]
         for r in rows[3]:
             lines.append(f"| {r['policy']}{' †' if is_extra_row(r) else ''} | {_table3_cells(r)} |")
@@ -135,8 +128,7 @@ def summary_markdown(rows: Mapping[int, Sequence[Mapping[str, Any]]], reading: s
         lines += claims_markdown(rows[3])
     if paper_recipe:
         lines += ["**Table III under the paper's own recipe** (Table I: one env, one SAC update per step, 5000 "
-                  f"episodes; seeds pooled; ours / paper); {paper_score}:", "",
-                  "| policy | seeds | success % | safe_success % | d_min_uav (m) | d_min_obs (m) | d_c (m) | t_goal (s) |",
+                  f"episodes; seeds pooled; ours / paper); {paper_score}:", "", f"| policy | seeds | {TABLE3_COLUMNS}",
                   "|---|---|---|---|---|---|---|---|"]
         for r in paper_recipe:
             if str(r.get("note", "")).startswith("not trained"):

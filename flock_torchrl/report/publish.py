@@ -64,14 +64,16 @@ def settings(overrides: Sequence[str] = ()) -> DictConfig:
     return cfg
 
 
+def _whole(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
 def _check_kind(key: str, default: Any, given: Any, text: str) -> None:
     """A value of the kind the key holds: a whole number (at least 1 for a count of episodes or
     threads) for a number, a list for a list."""
-    number = isinstance(default, int) and not isinstance(default, bool)
-    if number and (not isinstance(given, int) or isinstance(given, bool) or given < (1 if key.endswith(("episodes", "threads"))
-                                                                                     else 0)):
-        raise PublishError(f"{key}: must be a whole number{' >= 1' if key.endswith(('episodes', 'threads')) else ''}, "
-                           f"got {text!r}")
+    least = 1 if key.endswith(("episodes", "threads")) else 0
+    if _whole(default) and not (_whole(given) and given >= least):
+        raise PublishError(f"{key}: must be a whole number{' >= 1' if least else ''}, got {text!r}")
     if isinstance(default, ListConfig) and not isinstance(given, ListConfig):
         raise PublishError(f"{key}: must be a list, got {text!r}")
 
@@ -145,6 +147,14 @@ def staged_log(pub: Publication, log: Log) -> Log:
     return lambda line: log(line.replace(prefix, ""))
 
 
+def _land(cfg: DictConfig, name: str, log: Log, *steps: Callable[[Publication, Log], None],
+          areas: Sequence[str] = ("results", "figures")) -> None:
+    """Run ``steps`` (each ``step(pub, log)``) into one :func:`publication`: the set lands whole or not at all."""
+    with publication(cfg, name, areas, log=log) as pub:
+        for step in steps:
+            step(pub, staged_log(pub, log))
+
+
 # ---------------------------------------------------------------------------- Tables III-V and the figures
 def _table_configs(cfg: DictConfig) -> list[tuple[str, str, Any]]:
     """(reading, what, app config) of every table and figure set publish-tables writes, each checked now."""
@@ -179,10 +189,8 @@ def _write_tables(pub: Publication, configs: Sequence[tuple[str, str, Any]], log
         log(f"[{reading}] {what}")
         if what == "figures":
             make_figures(c, pub.staged(f"figures/{reading}"), log=log)
-            continue
-        result = reproduce(c, pub.staged(f"results/{reading}"), log=log)
-        if result["failed"]:
-            raise PublishError(f"{what} ({reading}): rows not evaluated: {', '.join(result['failed'])}")
+        else:   # reproduce evaluates every row or raises
+            reproduce(c, pub.staged(f"results/{reading}"), log=log)
 
 
 # ---------------------------------------------------------------------------- the claims over seeds
@@ -252,39 +260,37 @@ def _threed_plan(cfg: DictConfig) -> tuple[list[str], list]:
     return checkpoints, _scaling_configs(cfg, t["scaling"], t["reading"], t["scaling_episodes"])
 
 
-def _write_threed(cfg: DictConfig, pub: Publication, plan: tuple[list[str], list], log: Log,
-                  command: str = "make publish-threed") -> None:
+def _figure_settings(t: dict) -> dict[str, Any]:   # threed.publish's settings, from conf/publish.yaml's threed
+    return dict(baselines=t["baselines"], scenarios=t["scenarios"], gif_size=tuple(t["gif_size"]),
+                gif_stride=int(t["gif_stride"]), shown=t["shown"], frames=t["frames"])
+
+
+def _write_threed(cfg: DictConfig, pub: Publication, plan: tuple[list[str], list], log: Log) -> None:
     from .threed import publish
 
     t = value(cfg, "threed")
     reading = t["reading"]
     publish(plan[0], pub.staged(f"results/{reading}"), pub.staged(f"figures/{reading}"), reading, int(t["episodes"]),
-            command, baselines=t["baselines"], scenarios=t["scenarios"], gif_size=tuple(t["gif_size"]),
-            gif_stride=int(t["gif_stride"]), shown=t["shown"], frames=t["frames"], log=log)
+            "make publish-threed", log=log, **_figure_settings(t))
     _write_scaling(pub, plan[1], log)
 
 
 # ---------------------------------------------------------------------------- the targets
 def docs(cfg: DictConfig, log: Log = _say) -> None:
     """``make docs``: results/standing.md and every document's spliced blocks, from results/."""
-    with publication(cfg, "the documents' copies of results/", areas=("results",), log=log):
-        pass
+    _land(cfg, "the documents' copies of results/", log, areas=("results",))
 
 
 def publish_tables(cfg: DictConfig, log: Log = _say) -> None:
     """``make publish-tables``: Tables III-V, Fig. 4-6 and the paper recipe's Table III of each reading."""
     configs = _table_configs(cfg)
     _threads(cfg)
-    with publication(cfg, "Tables III-V and the figures", log=log) as pub:
-        log = staged_log(pub, log)
-        _write_tables(pub, configs, log)
+    _land(cfg, "Tables III-V and the figures", log, lambda pub, log: _write_tables(pub, configs, log))
 
 
 def publish_claims(cfg: DictConfig, log: Log = _say) -> None:
     """``make publish-claims``: the claims over the seeds of every published table, and the overview."""
-    with publication(cfg, "the claims over seeds", log=log) as pub:
-        log = staged_log(pub, log)
-        _write_claims(cfg, pub, log)
+    _land(cfg, "the claims over seeds", log, lambda pub, log: _write_claims(cfg, pub, log))
 
 
 def _paper_recipe_configs(cfg: DictConfig) -> list[tuple[str, str, Any]]:
@@ -306,39 +312,30 @@ def publish_paper_recipe(cfg: DictConfig, log: Log = _say) -> None:
     shipped seeds), the paper recipe's Table III, Fig. 4 and the claims."""
     configs = _paper_recipe_configs(cfg)
     _threads(cfg)
-    with publication(cfg, "the paper recipe's tables", log=log) as pub:
-        log = staged_log(pub, log)
-        _write_tables(pub, configs, log)
-        _write_claims(cfg, pub, log)
+    _land(cfg, "the paper recipe's tables", log, lambda pub, log: _write_tables(pub, configs, log),
+          lambda pub, log: _write_claims(cfg, pub, log))
 
 
 def publish_scaling(cfg: DictConfig, log: Log = _say) -> None:
     """``make publish-scaling``: each run of ``scaling.runs`` under each reading of ``scaling.readings``."""
     configs = _scaling_plan(cfg)
     _threads(cfg)
-    with publication(cfg, "the swarm-size tables", log=log) as pub:
-        log = staged_log(pub, log)
-        _write_scaling(pub, configs, log)
+    _land(cfg, "the swarm-size tables", log, lambda pub, log: _write_scaling(pub, configs, log))
 
 
 def publish_threed(cfg: DictConfig, log: Log = _say) -> None:
     """``make publish-threed``: the 3-D table, its verdicts, figures and scaling rows (conf/publish.yaml's ``threed``)."""
     plan = _threed_plan(cfg)
     _threads(cfg)
-    with publication(cfg, "the 3-D results", log=log) as pub:
-        log = staged_log(pub, log)
-        _write_threed(cfg, pub, plan, log)
+    _land(cfg, "the 3-D results", log, lambda pub, log: _write_threed(cfg, pub, plan, log))
 
 
 def publish_all(cfg: DictConfig, log: Log = _say) -> None:
     """``make publish``: publish-tables, publish-scaling and publish-claims as one set."""
     tables, scaling = _table_configs(cfg), _scaling_plan(cfg)
     _threads(cfg)
-    with publication(cfg, "every table and figure", log=log) as pub:
-        log = staged_log(pub, log)
-        _write_tables(pub, tables, log)
-        _write_scaling(pub, scaling, log)
-        _write_claims(cfg, pub, log)
+    _land(cfg, "every table and figure", log, lambda pub, log: _write_tables(pub, tables, log),
+          lambda pub, log: _write_scaling(pub, scaling, log), lambda pub, log: _write_claims(cfg, pub, log))
 
 
 def publish_benchmark(cfg: DictConfig, log: Log = _say) -> None:
@@ -347,9 +344,8 @@ def publish_benchmark(cfg: DictConfig, log: Log = _say) -> None:
     source = Path(value(cfg, "benchmark"))
     if not source.is_file():
         raise PublishError(f"no benchmark page at {source} (python -m benchmarks.run writes it)")
-    with publication(cfg, "the benchmark", areas=("results/benchmark.md",), log=log) as pub:
-        log = staged_log(pub, log)
-        shutil.copyfile(source, pub.staged("results/benchmark.md"))
+    _land(cfg, "the benchmark", log, lambda pub, log: shutil.copyfile(source, pub.staged("results/benchmark.md")),
+          areas=("results/benchmark.md",))
 
 
 # ---------------------------------------------------------------------------- targets that run apps in child processes
@@ -429,9 +425,7 @@ def table3_3d(cfg: DictConfig, log: Log = _say) -> None:
         raise PublishError(f"no finished 3-D run matches {s['runs'].replace('<reading>', reading)} (make train-3d)")
     out = Path(s["out"].replace("<reading>", reading))
     _threads(cfg)
-    publish(checkpoints, out, out, reading, int(s["episodes"]), "make table3-3d", baselines=t["baselines"],
-            scenarios=t["scenarios"], gif_size=tuple(t["gif_size"]), gif_stride=int(t["gif_stride"]), shown=t["shown"],
-            frames=t["frames"], log=log)
+    publish(checkpoints, out, out, reading, int(s["episodes"]), "make table3-3d", log=log, **_figure_settings(t))
 
 
 def scaling_outputs(cfg: DictConfig, scripts: Path, log: Log = _say) -> None:

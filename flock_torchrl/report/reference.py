@@ -128,7 +128,6 @@ def read_table_csv(path: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-
 __all__ = ["EXTRA_COLUMNS", "KEY_COLUMNS", "PAPER_RECIPE_ROW", "REFERENCE_DIR", "ROMAN", "TABLE_NUMBERS", "TITLES",
            "TableEntry", "VALUE_COLUMNS", "as_float", "comparison_row", "comparison_rows", "csv_columns",
            "load_reference", "read_table_csv", "reference_path", "table_entries"]

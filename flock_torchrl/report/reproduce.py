@@ -49,10 +49,6 @@ class Row:
     handles: list[PolicyHandle]
     extra: str = ""          # "" for the paper's rows; else what the row is (paper recipe, a contender)
 
-    @property
-    def key(self) -> tuple[str, ...]:
-        return self.entry.key
-
 
 def _collection(recipe: str, reading: str, checkpoints_dir: str | Path, paper_recipe_dir: str | Path | None) -> Path:
     if recipe == "paper":
@@ -161,21 +157,14 @@ def check_table_inputs(table: int, reading: str, checkpoints_dir: str | Path, pa
 def reproduce(cfg: ReproduceConfig, out_dir: str | Path = ".", log: Callable[[str], None] = print,
               policies: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Evaluate everything the paper table ``cfg.table`` needs under ``cfg.scenario.reading`` and
-    write it to ``out_dir``: ``conf/reproduce.yaml``'s app, taking its checked config.
-
-    Build ``cfg`` with :func:`flock_torchrl.config.app_config`, e.g.
-    ``reproduce(app_config("reproduce", table=3, reading="paper_fit", episodes=100), "out")``.
-    Its fields: ``only`` (the paper names of the rows to evaluate; empty: all), ``recipe``
-    (``fast``: the shipped checkpoints; ``paper``: Table III of the paper recipe), ``contenders``
-    (checkpoint paths or factory import paths, ``pkg.module.make``, or mappings with
-    ``_target_``, ``name``, ``scenario`` and ``extras``: extra rows), ``compare_to`` (a table CSV
-    written before, e.g. ``results/<reading>/table3.csv``: the rows both hold are also written
-    side by side, ``<stem>_vs_reference.md`` / ``.csv``, :mod:`~flock_torchrl.report.compare`,
-    with ``compare_tolerance``, column -> largest difference, deciding each row's ``within``).
-
-    Args:
-        policies: policy name -> a module / checkpoint (or a list) used instead (tests).
-    """
+    write it to ``out_dir``: ``conf/reproduce.yaml``'s app, taking its checked config (build it with
+    :func:`flock_torchrl.config.app_config`, e.g. ``app_config("reproduce", table=3, episodes=100)``).
+    ``cfg.only``: the paper names of the rows to evaluate (empty: all); ``recipe``: as the module says;
+    ``contenders``: checkpoint paths, factory import paths (``pkg.module.make``) or mappings with
+    ``_target_``, ``name``, ``scenario`` and ``extras``; ``compare_to``: a table CSV written before
+    (e.g. ``results/<reading>/table3.csv``), the rows both hold also written side by side
+    (:mod:`~flock_torchrl.report.compare`, ``compare_tolerance`` deciding each row's ``within``).
+    ``policies``: policy name -> a module / checkpoint (or a list) used instead (tests)."""
     table, reading, recipe, compare_to = cfg.table, cfg.scenario.reading, cfg.recipe, cfg.compare_to
     tolerance = check_tolerance(cfg.compare_tolerance)
     if compare_to is not None:

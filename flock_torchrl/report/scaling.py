@@ -80,14 +80,11 @@ def scaling(cfg: ScalingConfig, out_dir: str | Path = ".", log: Callable[[str], 
              "| policy | trained at N | N | spawn radius (m) | success % | safe_success % | crashed % | d_c (m) | "
              "d_min_uav (m) | t_goal (s) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
+    rate = lambda r, m: f"{100 * r[m]:.1f} [{100 * r[m + '_low']:.1f}, {100 * r[m + '_high']:.1f}]"  # noqa: E731
     for r in rows:
         lines.append(f"| {r['policy']} | {r['trained_sizes']} | {r['n_uavs']} | {r['spawn_radius']:.2f} | "
-                     f"{100 * r['success_rate']:.1f} "
-                     f"[{100 * r['success_rate_low']:.1f}, {100 * r['success_rate_high']:.1f}] | "
-                     f"{100 * r['safe_success_rate']:.1f} [{100 * r['safe_success_rate_low']:.1f}, "
-                     f"{100 * r['safe_success_rate_high']:.1f}] | {100 * r['crashed_rate']:.1f} | "
-                     f"{r['d_c']:.2f} ± {r['d_c_std']:.2f} | "
-                     f"{r['d_min_uav']:.2f} ± {r['d_min_uav_std']:.2f} | "
+                     f"{rate(r, 'success_rate')} | {rate(r, 'safe_success_rate')} | {100 * r['crashed_rate']:.1f} | "
+                     f"{r['d_c']:.2f} ± {r['d_c_std']:.2f} | {r['d_min_uav']:.2f} ± {r['d_min_uav_std']:.2f} | "
                      + ("—" if math.isnan(r["t_goal"]) else f"{r['t_goal']:.1f} ± {r['t_goal_std']:.1f}") + " |")
     write_text(out / f"{stem}.md", "\n".join(lines) + "\n")
     plot(rows, f"By swarm size ({reading}, {scenario})", out / f"{stem}.png")

@@ -9,7 +9,6 @@ reproducible to the last digit from the same scores.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ import numpy as np
 from scipy import stats
 
 from .claims import CLAIMS, Claim
+from .reference import read_table_csv
 
 RESAMPLES = 2000
 CONFIDENCE = 0.95
@@ -202,13 +202,10 @@ def comparisons_of(claim: Claim, scores: Mapping[str, Sequence[float]]) -> list[
 def read_seed_scores(path: str | Path, metric: str) -> dict[str, list[float]]:
     """``{policy: [score per seed]}`` from a ``*_seeds.csv`` table (one row per checkpoint)."""
     scores: dict[str, list[float]] = {}
-    with Path(path).open(newline="") as handle:
-        for row in csv.DictReader(handle):
-            if row.get("extra"):
-                continue
-            value = float(row[metric])
-            if not math.isnan(value):
-                scores.setdefault(row["policy"], []).append(value)
+    for row in read_table_csv(path):
+        value = math.nan if row.get("extra") else float(row[metric])
+        if not math.isnan(value):
+            scores.setdefault(row["policy"], []).append(value)
     return scores
 
 
@@ -248,27 +245,26 @@ def summary_table(seeds_csv: str | Path, metrics: Sequence[str] = SUMMARY_METRIC
     return "\n".join(lines) + "\n"
 
 
-def plot_profiles(seeds_csv: str | Path, destination: str | Path, metric: str = "success_rate",
-                  title: str | None = None) -> Path:
+def plot_profiles(seeds_csv: str | Path, destination: str | Path) -> Path:
     """A performance profile per policy with at least two seeds: the fraction of its runs whose
-    ``metric`` lies above each level, with its 95 % band over runs, saved (atomically) as a PNG."""
+    success rate lies above each level, with its 95 % band over runs, saved (atomically) as a PNG."""
     from matplotlib.figure import Figure
 
     from .figures import save_figure
 
     fig = Figure(figsize=(7.0, 4.5), dpi=120)
     ax = fig.add_subplot()
-    scores = {p: s for p, s in read_seed_scores(seeds_csv, metric).items() if len(s) >= 2}
+    scores = {p: s for p, s in read_seed_scores(seeds_csv, "success_rate").items() if len(s) >= 2}
     for policy, runs in scores.items():
         profile = performance_profile(runs)
         line, = ax.step(profile.levels, profile.fraction, where="post", label=f"{policy} ({len(runs)})")
         ax.fill_between(profile.levels, profile.low, profile.high, step="post", alpha=0.12, color=line.get_color())
     lowest = min((min(runs) for runs in scores.values()), default=0.0)
     ax.set_xlim(max(0.0, math.floor(lowest * 50 - 1) / 50), 1.0 + 0.005)   # from just below the lowest run
-    ax.set_xlabel(f"{metric} level")
+    ax.set_xlabel("success_rate level")
     ax.set_ylabel("fraction of runs above the level")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_title(title or f"Performance profiles over seeds: {Path(seeds_csv).name}")
+    ax.set_title(f"Performance profiles over seeds: {Path(seeds_csv).name}")
     ax.legend(fontsize=7, ncol=2, loc="lower left")
     ax.grid(alpha=0.3)
     return save_figure(fig, destination)

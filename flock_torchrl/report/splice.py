@@ -87,13 +87,12 @@ def splice_file(document: str | Path, root: str | Path | None = None) -> list[st
     return changed
 
 
-def splice_staged(publication, documents: Sequence[str | Path] | None = None) -> list[str]:
-    """A publication's ``refresh``: each of its documents (or ``documents``) read from the
-    repository as it is now, its blocks spliced from the staged files (those the publication did
-    not write from the repository), written into the stage where that changes it. Returns the
-    documents that change."""
+def splice_staged(publication) -> list[str]:
+    """A publication's ``refresh``: each of its documents read from the repository as it is now,
+    its blocks spliced from the staged files (those the publication did not write from the
+    repository), written into the stage where that changes it. Returns the documents that change."""
     changed = []
-    for document in (publication.documents if documents is None else documents):
+    for document in publication.documents:
         live = Path(document).absolute()
         text = live.read_text()
         new = splice_text(text, [publication.stage, publication.root], str(live.relative_to(publication.root)))
@@ -192,33 +191,25 @@ def demo_numbers(lines: list[str]) -> dict[str, float]:
     return out
 
 
-def tolerance_text(tolerance: dict[str, float] | None = None) -> str:
-    """:data:`DEMO_TOLERANCE` in words."""
-    t = DEMO_TOLERANCE if tolerance is None else tolerance
-    parts = [" and ".join(DEMO_EXACT) + " equal"]
-    rates = [k for k in ("success", "safe_success") if k in t]
-    for key, value in t.items():
-        if key == "episodes":
-            parts.append(f"episodes within {100 * value:.0f} %")
-        elif key in rates:
-            if key == rates[0]:
-                same = [k for k in rates if t[k] == value]
-                parts.append(f"{' and '.join(same)} within {100 * value:.0f} points")
-            elif t[key] != t[rates[0]]:
-                parts.append(f"{key} within {100 * value:.0f} points")
-        else:
-            parts.append(f"{key} within {value:g} {'s' if key == 't_goal' else 'm'}")
-    return ", ".join(parts)
+def tolerance_text() -> str:
+    """:data:`DEMO_TOLERANCE` in words (rates of equal tolerance named together)."""
+    t = DEMO_TOLERANCE
+    rates: dict[float, list[str]] = {}
+    for key in ("success", "safe_success"):
+        rates.setdefault(t[key], []).append(key)
+    return ", ".join([" and ".join(DEMO_EXACT) + " equal", f"episodes within {100 * t['episodes']:.0f} %",
+                      *(f"{' and '.join(keys)} within {100 * value:.0f} points" for value, keys in rates.items()),
+                      *(f"{key} within {value:g} {'s' if key == 't_goal' else 'm'}" for key, value in t.items()
+                        if key not in ("episodes", "success", "safe_success"))])
 
 
-def demo_differences(printed: list[str], quoted: list[str], recorded: str, this: str | None = None,
-                     tolerance: dict[str, float] | None = None) -> tuple[str, list[str]]:
+def demo_differences(printed: list[str], quoted: list[str], recorded: str,
+                     this: str | None = None) -> tuple[str, list[str]]:
     """Compare a demo's printed lines with the quoted ones: on the machine of the quoted lines'
     fingerprint (``recorded`` equal to ``this``, default :func:`machine`) every number but the
     seconds must be equal ("exact"); elsewhere each within :data:`DEMO_TOLERANCE` ("tolerance").
     Returns the mode and what lies outside (empty: the demo keeps README's promise)."""
     this = machine() if this is None else this
-    tolerance = DEMO_TOLERANCE if tolerance is None else tolerance
     got, want = demo_numbers(printed), demo_numbers(quoted)
     missing = [k for k in want if k not in got]
     if missing:
@@ -234,9 +225,9 @@ def demo_differences(printed: list[str], quoted: list[str], recorded: str, this:
         if key in DEMO_EXACT:
             ok = got[key] == value
         elif key == "episodes":
-            ok = abs(got[key] - value) <= tolerance[key] * value
-        elif key in tolerance:
-            ok = abs(got[key] - value) <= tolerance[key]
+            ok = abs(got[key] - value) <= DEMO_TOLERANCE[key] * value
+        elif key in DEMO_TOLERANCE:
+            ok = abs(got[key] - value) <= DEMO_TOLERANCE[key]
         else:
             continue
         if not ok:

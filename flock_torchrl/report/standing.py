@@ -13,7 +13,6 @@ comparison per scenario and size, ``results/paper_fit/scaling_pooled.md`` (docs/
 
 from __future__ import annotations
 
-import csv
 import re
 import sys
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Iterable, Sequence
 from ..io import write_text
 from ..run.results import wilson_interval
 from .claims import CLAIMS, LEARNED
+from .reference import read_table_csv
 from .seeds import claim_verdict, comparisons_of, read_seed_scores
 
 READINGS = ("paper_fit", "literal")
@@ -33,8 +33,7 @@ SUCCESS_CLAIMS = [c for c in CLAIMS if c.metric == "success_rate"]
 
 
 def _rows(path: Path) -> dict[str, dict[str, str]]:
-    with path.open(newline="") as handle:
-        return {row["policy"]: row for row in csv.DictReader(handle)}
+    return {row["policy"]: row for row in read_table_csv(path)}
 
 
 def _fidelity(results: Path, reading: str) -> str:
@@ -83,8 +82,7 @@ def instinct_row(results: Path) -> str:
     return (f"| the instinct keeps UAVs apart (the paper's central claim) | {verdict} over seeds under `paper_fit`: "
             f"Policy3-G's closest pair {float(p3g['d_min_uav']):.3f} m (paper {float(p3g['d_min_uav_paper']):.3f} m), "
             f"safe success {_pct(float(p3g['safe_success_rate']))} % (the goal reached with no pair ever within 0.5 m); "
-            f"without the "
-            f"instinct {min(without):.3f}-{max(without):.3f} m |")
+            f"without the instinct {min(without):.3f}-{max(without):.3f} m |")
 
 
 def fidelity_row(results: Path) -> str:
@@ -102,8 +100,7 @@ def success_row(results: Path) -> str:
         rows = _rows(results / reading / "table3.csv")
         ours, paper = _learned(rows, "success_rate"), _learned(rows, "success_rate_paper")
         cells.append(f"`{reading}` {_range(list(ours.values()))} (paper {_range(list(paper.values()))})")
-    verdicts = _verdicts(results / "paper_fit" / "table3_seeds.csv", SUCCESS_CLAIMS)
-    held = sum(v == "holds" for v in verdicts)
+    held = _verdicts(results / "paper_fit" / "table3_seeds.csv", SUCCESS_CLAIMS).count("holds")
     seeds = _count(_seeds(results, "paper_fit"))
     return (f"| success of the learned policies, fast recipe ({seeds} seeds each) | " + "; ".join(cells)
             + f": saturated, so {held} of the paper's {len(SUCCESS_CLAIMS)} claims on success differences hold "
@@ -111,13 +108,11 @@ def success_row(results: Path) -> str:
 
 
 def paper_recipe_row(results: Path) -> str:
-    table = results / "paper_fit" / "table3_paper_recipe.csv"
-    rows = _rows(table)
+    rows = _rows(results / "paper_fit" / "table3_paper_recipe.csv")
     trained = {p: float(r["success_rate"]) for p, r in rows.items()
                if p in LEARNED and r.get("success_rate") not in (None, "") and int(float(r["n_checkpoints"] or 0))}
     seeds = _seeds(results, "paper_fit", "table3_paper_recipe")
-    verdicts = _verdicts(results / "paper_fit" / "table3_paper_recipe_seeds.csv", SUCCESS_CLAIMS)
-    held = sum(v == "holds" for v in verdicts)
+    held = _verdicts(results / "paper_fit" / "table3_paper_recipe_seeds.csv", SUCCESS_CLAIMS).count("holds")
     return (f"| the paper's own recipe (5000 episodes; {len(trained)} policies, {_count(seeds)} seeds each; "
             f"`paper_fit`) | {_range(list(trained.values()))}; {held} of the {len(SUCCESS_CLAIMS)} success claims "
             "hold over seeds |")
@@ -142,8 +137,7 @@ def _pooled(rows: list[dict[str, str]], size: int, key: str) -> tuple[float, flo
 
 def scaling_cells(path: Path, policy: str = SCALING_POLICY) -> list[dict]:
     """Per swarm size: ``policy``'s seeds pooled beside Policy-MA (safe success, success)."""
-    with path.open(newline="") as handle:
-        rows = list(csv.DictReader(handle))
+    rows = read_table_csv(path)
     mine = [r for r in rows if r["policy"].startswith(f"{policy} [")]
     base = {int(r["n_uavs"]): r for r in rows if r["policy"] == BASELINE}
     if not mine or not base:
@@ -222,17 +216,12 @@ def _verdict(c: dict) -> str:
 
 # The pooled comparisons with Policy-MA (docs/specification.md section 11): file -> (policy, its
 # scenarios' scaling tables, the make target that publishes them). Written where their rows are.
-POOLED = {
-    "scaling_pooled.md": (SCALING_POLICY, {"train": "scaling.csv", "forest": "scaling_forest.csv"},
-                          "`make publish-scaling`"),
-    "scaling_pooled_paper_camera.md": (PAPER_CAMERA_POLICY, {"train": "scaling.csv", "forest": "scaling_forest.csv"},
-                                       "`make publish-scaling`"),
-    "scaling3d_pooled.md": (SCALING_POLICY, {"train3d": "scaling_train3d.csv", "forest3d": "scaling_forest3d.csv"},
-                            "`make publish-threed`"),
-    "scaling3d_pooled_paper_camera.md": (PAPER_CAMERA_POLICY, {"train3d": "scaling_train3d.csv",
-                                                               "forest3d": "scaling_forest3d.csv"},
-                                         "`make publish-threed`"),
-}
+PLANE = {"train": "scaling.csv", "forest": "scaling_forest.csv"}, "`make publish-scaling`"
+SPACE = {"train3d": "scaling_train3d.csv", "forest3d": "scaling_forest3d.csv"}, "`make publish-threed`"
+POOLED = {"scaling_pooled.md": (SCALING_POLICY, *PLANE),
+          "scaling_pooled_paper_camera.md": (PAPER_CAMERA_POLICY, *PLANE),
+          "scaling3d_pooled.md": (SCALING_POLICY, *SPACE),
+          "scaling3d_pooled_paper_camera.md": (PAPER_CAMERA_POLICY, *SPACE)}
 
 
 def scaling_summary(reading_dir: str | Path, name: str = "scaling_pooled.md") -> str | None:
@@ -255,9 +244,7 @@ def scaling_summary(reading_dir: str | Path, name: str = "scaling_pooled.md") ->
              "|---|---|---|---|---|---|---|"]
     verdicts = []
     for scenario, path in found.items():
-        with path.open(newline="") as handle:
-            base = {int(r["n_uavs"]): float(r["success_rate"]) for r in csv.DictReader(handle)
-                    if r["policy"] == BASELINE}
+        base = {int(r["n_uavs"]): float(r["success_rate"]) for r in read_table_csv(path) if r["policy"] == BASELINE}
         for c in scaling_cells(path, policy):
             verdict = _verdict(c)
             verdicts.append(verdict)
@@ -273,8 +260,7 @@ def scaling_summary(reading_dir: str | Path, name: str = "scaling_pooled.md") ->
 
 
 def _has_rows(path: Path, policy: str) -> bool:
-    with path.open(newline="") as handle:
-        return any(r["policy"].startswith(f"{policy} [") for r in csv.DictReader(handle))
+    return any(r["policy"].startswith(f"{policy} [") for r in read_table_csv(path))
 
 
 def standing(results: str | Path = "results") -> str:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..io import write_text
+from .reference import as_float
 
 COLUMNS = ("success_rate", "safe_success_rate", "d_min_obs", "d_min_uav", "d_c", "v_error", "phi_error", "speed",
            "t_goal")
@@ -32,10 +33,6 @@ def collect(folder: str | os.PathLike) -> list[dict[str, Any]]:
     return [json.loads(p.read_text()) for p in sorted(Path(folder).glob("**/summary.json"))]
 
 
-def _number(value: Any) -> float:
-    return math.nan if value is None else float(value)
-
-
 def cells(summaries: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per (policy, scenario): the seeds' count and, per column, mean and spread."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -46,7 +43,7 @@ def cells(summaries: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"policy": policy, "scenario": scenario, "seeds": len(runs),
                                "episodes": sum(int(r["n_episodes"]) for r in runs)}
         for column in COLUMNS:
-            values = [_number(r["summary"].get(column)) for r in runs]
+            values = [as_float(r["summary"].get(column)) for r in runs]
             finite = [v for v in values if not math.isnan(v)]
             mean = sum(finite) / len(finite) if finite else math.nan
             if len(runs) > 1:
@@ -54,7 +51,7 @@ def cells(summaries: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
                           if len(finite) > 1 else math.nan)
                 row[f"{column}_spread"], row[f"{column}_over"] = spread, "seeds"
             else:
-                row[f"{column}_spread"] = _number(runs[0]["summary"].get(f"{column}_std"))
+                row[f"{column}_spread"] = as_float(runs[0]["summary"].get(f"{column}_std"))
                 row[f"{column}_over"] = "episodes"
             row[column] = mean
         rows.append(row)
@@ -74,12 +71,14 @@ def markdown(rows: list[dict[str, Any]]) -> str:
         mark = "" if row[f"{column}_over"] == "seeds" else " e"
         return f"{mean:.3f}" + ("" if math.isnan(spread) else f" ± {spread:.3f}{mark}")
 
-    lines = ["| scenario | policy | seeds | episodes | " + " | ".join(LABELS) + " |",
-             "|" + "---|" * (4 + len(LABELS))]
-    for row in rows:
-        lines.append(f"| {row['scenario']} | {row['policy']} | {row['seeds']} | {row['episodes']} | "
-                     + " | ".join(fmt(row, c) for c in COLUMNS) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(_table(rows, fmt)) + "\n"
+
+
+def _table(rows: Iterable[dict[str, Any]], cell: Callable[[dict[str, Any], str], str]) -> list[str]:
+    """A row per policy and scenario, each column's text ``cell(row, column)``."""
+    return ["| scenario | policy | seeds | episodes | " + " | ".join(LABELS) + " |", "|" + "---|" * (4 + len(LABELS)),
+            *(f"| {r['scenario']} | {r['policy']} | {r['seeds']} | {r['episodes']} | "
+              + " | ".join(cell(r, c) for c in COLUMNS) + " |" for r in rows)]
 
 
 def write_table(folder: str | os.PathLike) -> Path:
@@ -255,19 +254,14 @@ def published_markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
              f"bootstrap interval over seeds (scipy.stats.bootstrap, {RESAMPLES} resamples); a baseline has one "
              "score per scenario. Rates in %, distances in m, speeds in m/s, angles in rad, t^g in s over the "
              "episodes that reached the goal. Each seed: `table3_3d_seeds.csv`. The rule: "
-             "docs/specification.md section 11.", "",
-             "| scenario | policy | seeds | episodes | " + " | ".join(LABELS) + " |",
-             "|" + "---|" * (4 + len(LABELS))]
-    for row in pooled:
-        lines.append(f"| {row['scenario']} | {row['policy']} | {row['seeds']} | {row['episodes']} | "
-                     + " | ".join(_interval_cell(row, c) for c in COLUMNS) + " |")
-    lines += ["", "## Verdicts", "",
-              "Policy3-G above each other policy, per scenario and metric: P(X > Y) over seeds (ties half; against "
-              "a baseline, the fraction of Policy3-G's seeds above its one score) and the difference of means, each "
-              f"with its {100 * CONFIDENCE:.0f} % interval; the verdict by docs/specification.md section 10's rule (smallest "
-              "differences that matter: " + ", ".join(f"{m} {SMALLEST_DIFFERENCE[m]:g}" for m in COMPARED) + ").", "",
-              "| scenario | comparison | metric | seeds | P(X > Y) [95 %] | difference of means [95 %] | verdict |",
-              "|---|---|---|---|---|---|---|"]
+             "docs/specification.md section 11.", "", *_table(pooled, _interval_cell),
+             "", "## Verdicts", "",
+             "Policy3-G above each other policy, per scenario and metric: P(X > Y) over seeds (ties half; against "
+             "a baseline, the fraction of Policy3-G's seeds above its one score) and the difference of means, each "
+             f"with its {100 * CONFIDENCE:.0f} % interval; the verdict by docs/specification.md section 10's rule "
+             "(smallest differences that matter: " + ", ".join(f"{m} {SMALLEST_DIFFERENCE[m]:g}" for m in COMPARED) + ").", "",
+             "| scenario | comparison | metric | seeds | P(X > Y) [95 %] | difference of means [95 %] | verdict |",
+             "|---|---|---|---|---|---|---|"]
     for scenario, metric, c in comparisons(rows):
         n = f"{len(_scores(rows, scenario, c.better, metric))} / {len(_scores(rows, scenario, c.worse, metric))}"
         lines.append(f"| {scenario} | {c.better} above {c.worse} | {metric} | {n} | {c.probability:.2f} "
@@ -311,20 +305,20 @@ def publish_table(rows: Sequence[dict[str, Any]], out_dir: str | os.PathLike, co
             write_text(out / "table3_3d_brief.md", brief_markdown(rows))]
 
 
-def representative(rows: Sequence[dict[str, Any]], policy: str, scenario: str,
-                   metric: str = "success_rate") -> dict[str, Any] | None:
-    """The row of ``policy``'s seed whose ``metric`` on ``scenario`` is the median of its seeds' (for an even
+def representative(rows: Sequence[dict[str, Any]], policy: str, scenario: str) -> dict[str, Any] | None:
+    """The row of ``policy``'s seed whose success rate on ``scenario`` is the median of its seeds' (for an even
     count, the lower of the two middle ones; equal scores in the order of the seeds): the seed a figure
     shows, typical rather than the best or the worst. ``None`` when ``policy`` has no row there."""
     mine = [r for r in rows if r["policy"] == policy and r["scenario"] == scenario]
     if not mine:
         return None
-    mine.sort(key=lambda r: (float(r[metric]), -1 if r.get("seed") is None else int(r["seed"]), str(r["checkpoint"])))
+    mine.sort(key=lambda r: (float(r["success_rate"]), -1 if r.get("seed") is None else int(r["seed"]),
+                             str(r["checkpoint"])))
     return mine[(len(mine) - 1) // 2]
 
 
 def figures_markdown(rows: Sequence[dict[str, Any]], shown: dict[str, dict[str, Any]], baseline: str,
-                     frames: str | None, metric: str = "success_rate") -> str:
+                     frames: str | None) -> str:
     """``threed_figures.md``: which seed each figure shows, and why."""
     policy = next(iter(shown.values()))["policy"] if shown else FIRST
     lines = ["# The 3-D figures", "",
@@ -333,15 +327,15 @@ def figures_markdown(rows: Sequence[dict[str, Any]], shown: dict[str, dict[str, 
              "vertical plane through the area's centre and the goal (right)"
              + (f"; `threed_{frames}_frames.png`: that seed's episode on {frames} at its start, half-way and its end"
                 if frames in shown else "")
-             + f". The seed shown on a scenario is the one whose {metric.replace('_', ' ')} there is the median of "
-             f"the seeds' (the lower middle one for an even count; `flock_torchrl.report.threed.representative`): a "
+             + ". The seed shown on a scenario is the one whose success rate there is the median of "
+             "the seeds' (the lower middle one for an even count; `flock_torchrl.report.threed.representative`): a "
              "typical seed, neither the best nor the worst.", "",
-             f"| scenario | {policy}'s seed shown | its {metric.replace('_', ' ')} | every seed's |", "|---|---|---|---|"]
+             f"| scenario | {policy}'s seed shown | its success rate | every seed's |", "|---|---|---|---|"]
     for scenario, row in shown.items():
         seeds = sorted((r for r in rows if r["policy"] == row["policy"] and r["scenario"] == scenario),
                        key=lambda r: -1 if r.get("seed") is None else int(r["seed"]))
-        every = ", ".join(f"{r.get('seed')}: {100 * float(r[metric]):.1f} %" for r in seeds)
-        lines.append(f"| {scenario} | {row.get('seed')} | {100 * float(row[metric]):.1f} % | {every} |")
+        every = ", ".join(f"{r.get('seed')}: {100 * float(r['success_rate']):.1f} %" for r in seeds)
+        lines.append(f"| {scenario} | {row.get('seed')} | {100 * float(row['success_rate']):.1f} % | {every} |")
     return "\n".join(lines) + "\n"
 
 
