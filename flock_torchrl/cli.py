@@ -22,6 +22,8 @@ cannot (files, checkpoints, the swarm's spawn, memory) and a ``run``.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import importlib
 import os
 import signal
 import sys
@@ -50,11 +52,9 @@ register()
 
 
 def _errors() -> tuple[type[BaseException], ...]:
-    from .policies.checkpoint import CheckpointError
-    from .run.publication import PublishError
-    from .world.spawn import SpawnError
+    from .run.publication import ERRORS  # ConfigError, CheckpointError, SpawnError, PublishError
 
-    return ConfigError, AppError, CheckpointError, SpawnError, PublishError
+    return AppError, *ERRORS
 
 
 def fail(message: Any) -> None:
@@ -73,22 +73,24 @@ class App:
     run: Callable[[Any, Path], Any]
 
 
-def _set_threads(threads: int) -> None:
-    import torch
+def _set_threads(cfg: Any) -> None:
+    """``threads`` of an app that has it (0: torch's default)."""
+    if getattr(cfg, "threads", 0):
+        import torch
 
-    if threads:
-        torch.set_num_threads(int(threads))
+        torch.set_num_threads(int(cfg.threads))
 
 
 def _say(message: str) -> None:
     print(job_tag() + message, flush=True)
 
 
-# -- train
-def _prepare_train(cfg: TrainConfig, out: Path) -> None:
-    from .run.setup import prepare
+def _calls(module: str, name: str, **kwargs: Any) -> Callable[[Any, Path], Any]:
+    """``<module>.<name>(cfg, out, **kwargs)``, its module imported only when the app gets there."""
+    def call(cfg: Any, out: Path) -> Any:
+        return getattr(importlib.import_module(module, __package__), name)(cfg, out, **kwargs)
 
-    prepare(cfg, out)
+    return call
 
 
 def _run_train(cfg: TrainConfig, out: Path) -> float:
@@ -97,7 +99,6 @@ def _run_train(cfg: TrainConfig, out: Path) -> float:
     from .run.launch import train
 
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # no "Initialized LazyTensorStorage" lines
-    _set_threads(cfg.threads)
     result = train(cfg, out)
     if any(result.split.values()):
         _say(result.split_line())
@@ -130,11 +131,10 @@ def _prepare_evaluate(cfg: EvaluateConfig, out: Path) -> None:
 def _run_evaluate(cfg: EvaluateConfig, out: Path) -> Any:
     from .run.evaluation import evaluate_app
 
-    _set_threads(cfg.threads)
     return evaluate_app(cfg, out, log=_say).rate("success").rate
 
 
-# -- reproduce, figures, scaling
+# -- reproduce, figures, scaling (their runs: the report's functions)
 def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import check_table_inputs
     from .world.memory import check_episodes_memory
@@ -147,7 +147,6 @@ def _prepare_reproduce(cfg: ReproduceConfig, out: Path) -> None:
 def _run_reproduce(cfg: ReproduceConfig, out: Path) -> None:
     from .report.reproduce import reproduce
 
-    _set_threads(cfg.threads)
     result = reproduce(cfg, out, log=_say)
     if result["failed"]:
         raise AppError(f"Table {cfg.table}: rows not evaluated: {', '.join(result['failed'])} (see above)")
@@ -159,13 +158,6 @@ def _prepare_figures(cfg: FiguresConfig, out: Path) -> None:
     check_figure_inputs(cfg.scenario.reading, cfg.figs, cfg.checkpoints_dir)
 
 
-def _run_figures(cfg: FiguresConfig, out: Path) -> None:
-    from .report.figures import make_figures
-
-    _set_threads(cfg.threads)
-    make_figures(cfg, out, log=_say)
-
-
 def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
     from .policies.registry import resolve
     from .world.memory import check_episodes_memory
@@ -175,24 +167,12 @@ def _prepare_scaling(cfg: ScalingConfig, out: Path) -> None:
         check_trained_dims(resolve(policy, cfg.scenario.reading, cfg.checkpoints_dir, device=cfg.device), cfg.scenario)
 
 
-def _run_scaling(cfg: ScalingConfig, out: Path) -> None:
-    from .report.scaling import scaling
-
-    _set_threads(cfg.threads)
-    scaling(cfg, out, log=_say)
-
-
 # -- ship, tune
 def _prepare_ship(cfg: ShipConfig, out: Path) -> None:
     key, runs_dir = ((f"scenario_collections.{cfg.only}.runs_dir", cfg.scenario_collections[cfg.only]["runs_dir"])
                      if cfg.only is not None else ("runs_dir", cfg.runs_dir))
     if not Path(runs_dir).is_dir():
         raise ConfigError(key, f"{runs_dir} is not a folder of runs")
-
-
-def _ship_folders(cfg: ShipConfig) -> list[Path]:
-    return [Path(cfg.runs_dir) / e / cfg.scenario.reading
-            for e in (cfg.experiment, cfg.paper_experiment, *cfg.collections)]
 
 
 def _run_ship(cfg: ShipConfig, out: Path) -> None:
@@ -208,11 +188,11 @@ def _run_ship(cfg: ShipConfig, out: Path) -> None:
                                  Path(cfg.checkpoints_dir) / cfg.scenario.reading / cfg.only, log=_say,
                                  target=spec.get("target"))
         return
-    folders = _ship_folders(cfg)
+    folders = [Path(cfg.runs_dir) / e / cfg.scenario.reading
+               for e in (cfg.experiment, cfg.paper_experiment, *cfg.collections)]
     if not any(f.is_dir() for f in folders):  # nothing trained under this reading: say so
         _say(f"nothing to ship under {', '.join(map(str, folders))}")
         return
-
     ship_checkpoints(cfg.scenario.reading, cfg.experiment, Path(cfg.runs_dir), Path(cfg.checkpoints_dir),
                      cfg.paper_experiment, Path(cfg.paper_recipe_dir), log=_say, collections=dict(cfg.collections))
 
@@ -223,13 +203,6 @@ def _prepare_tune(cfg: TuneConfig, out: Path) -> None:
     unknown = sorted(set(cfg.controllers) - set(GRIDS))
     if unknown:
         raise ConfigError("controllers", f"unknown {unknown}; known: {sorted(GRIDS)}")
-
-
-def _run_tune(cfg: TuneConfig, out: Path) -> None:
-    from .report.tuning import tune_app
-
-    _set_threads(cfg.threads)
-    tune_app(cfg, out, log=_say)
 
 
 # -- diagnose
@@ -245,22 +218,15 @@ def _prepare_diagnose(cfg: Any, out: Path) -> None:
         check_trained_dims(handles, scenario_config(name, reading=cfg.scenario.reading), "scenarios", f"{name}'s ")
 
 
-def _run_diagnose(cfg: Any, out: Path) -> None:
-    from .report.diagnosis import diagnose_app
-
-    _set_threads(cfg.threads)
-    diagnose_app(cfg, out, log=_say)
-
-
 APPS: dict[str, App] = {
-    "train": App(TrainConfig, _prepare_train, _run_train),
+    "train": App(TrainConfig, _calls(".run.setup", "prepare"), _run_train),
     "evaluate": App(EvaluateConfig, _prepare_evaluate, _run_evaluate),
     "reproduce": App(ReproduceConfig, _prepare_reproduce, _run_reproduce),
-    "figures": App(FiguresConfig, _prepare_figures, _run_figures),
-    "scaling": App(ScalingConfig, _prepare_scaling, _run_scaling),
+    "figures": App(FiguresConfig, _prepare_figures, _calls(".report.figures", "make_figures", log=_say)),
+    "scaling": App(ScalingConfig, _prepare_scaling, _calls(".report.scaling", "scaling", log=_say)),
     "ship": App(ShipConfig, _prepare_ship, _run_ship),
-    "tune_baselines": App(TuneConfig, _prepare_tune, _run_tune),
-    "diagnose": App(DiagnoseConfig, _prepare_diagnose, _run_diagnose),
+    "tune_baselines": App(TuneConfig, _prepare_tune, _calls(".report.tuning", "tune_app", log=_say)),
+    "diagnose": App(DiagnoseConfig, _prepare_diagnose, _calls(".report.diagnosis", "diagnose_app", log=_say)),
 }
 assert set(APPS) == set(APP_SCHEMAS)
 
@@ -312,7 +278,6 @@ def checked(app: str, cfg: DictConfig, out: Path, key: str = "hydra.run.dir") ->
     return obj
 
 
-
 def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
     """Run ``fn``; report this project's errors as one line with exit status 2 (a config error
     also names the file its group's choice came from, when that is a file)."""
@@ -328,7 +293,6 @@ def _guard(fn: Callable[[], Any], config: DictConfig | None = None) -> Any:
         if write_failure(exc) is None:
             raise
         fail(f"{write_failure(exc)}; files are written whole or not at all, nothing half-written was left")
-
 
 
 class PreRunCheck(Callback):
@@ -350,7 +314,8 @@ class PreRunCheck(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check_sweep(config)
-        APP_SIGNALS.arm(jobs_elsewhere=_jobs_in_workers(config))
+        launcher = str(config.hydra.launcher.get("_target_", "")).lower()
+        APP_SIGNALS.arm(jobs_elsewhere="joblib" in launcher)  # the jobs run in joblib's local worker processes
 
     def _check_sweep(self, config: DictConfig) -> None:
         _guard(lambda: check_launcher(config))
@@ -365,7 +330,6 @@ class PreRunCheck(Callback):
             job = loader.load_sweep_config(config, list(overrides))
             out = Path(str(job.hydra.sweep.dir)) / str(job.hydra.sweep.subdir)
             _CHECKED[_task_yaml(job)] = _guard(lambda: checked(self.app, job, out, "hydra.sweep.dir"), job)
-
 
 
 # ---------------------------------------------------------------------------- the mains
@@ -384,6 +348,7 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
         try:
             obj = _CHECKED.pop(_task_yaml(cfg), None) or _guard(lambda: checked(app, cfg, out))
             APP_SIGNALS.arm()  # also where no PreRunCheck ran (a config without the callback)
+            _set_threads(obj)
             return _guard(lambda: APPS[app].run(obj, out))
         except TrainingInterrupted as exc:
             say(f"{exc}: checkpoint {exc.result.checkpoint} ({exc.result.frames} frames); resume with: {exc.command}")
@@ -397,11 +362,6 @@ def _task(app: str) -> Callable[[DictConfig], Any]:
 
     task.__name__ = app
     return task
-
-
-def _jobs_in_workers(config: DictConfig) -> bool:
-    """The sweep's launcher runs its jobs in local worker processes (joblib's)."""
-    return "joblib" in str(config.hydra.launcher.get("_target_", "")).lower()
 
 
 def main(app: str, noted: list[int] | None = None) -> Any:
@@ -425,44 +385,15 @@ def main(app: str, noted: list[int] | None = None) -> Any:
         raise SystemExit(128 + stop.signum) from None
 
 
-def train_main(noted: list[int] | None = None) -> Any:
-    """``scripts/train.py`` / ``flock-train``."""
-    return main("train", noted)
-
-
-def evaluate_main() -> Any:
-    """``scripts/evaluate.py`` / ``flock-evaluate``."""
-    return main("evaluate")
-
-
-def reproduce_main() -> Any:
-    """``scripts/reproduce.py`` / ``flock-reproduce``."""
-    return main("reproduce")
-
-
-def figures_main() -> Any:
-    """``scripts/figures.py`` / ``flock-figures``."""
-    return main("figures")
-
-
-def scaling_main() -> Any:
-    """``scripts/scaling.py`` / ``flock-scaling``."""
-    return main("scaling")
-
-
-def ship_main() -> Any:
-    """``scripts/ship.py``: the named step that updates ``checkpoints/``."""
-    return main("ship")
-
-
-def tune_baselines_main() -> Any:
-    """``scripts/tune_baselines.py``."""
-    return main("tune_baselines")
-
-
-def diagnose_main() -> Any:
-    """``scripts/diagnose.py``."""
-    return main("diagnose")
+# The console scripts' entry points (pyproject.toml's flock-<app>; scripts/<app>.py call main itself).
+train_main = functools.partial(main, "train")
+evaluate_main = functools.partial(main, "evaluate")
+reproduce_main = functools.partial(main, "reproduce")
+figures_main = functools.partial(main, "figures")
+scaling_main = functools.partial(main, "scaling")
+ship_main = functools.partial(main, "ship")   # the named step that updates checkpoints/
+tune_baselines_main = functools.partial(main, "tune_baselines")
+diagnose_main = functools.partial(main, "diagnose")
 
 
 __all__ = ["APPS", "App", "AppError", "PreRunCheck", "checked", "diagnose_main", "evaluate_main", "fail",

@@ -83,11 +83,7 @@ def _atomic_write(path: Path, write: Callable[[str], None]) -> Path:
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    def write(tmp: str) -> None:
-        with open(tmp, "wb") as handle:
-            handle.write(data)
-
-    return atomic_write(path, write)
+    return atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:

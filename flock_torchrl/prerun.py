@@ -48,7 +48,6 @@ def check_writable(folder: Path, key: str) -> None:
         raise ConfigError(key, f"{folder} cannot be written ({why})") from None
 
 
-
 def covers(a: str, b: str) -> bool:
     """Dotted keys ``a`` and ``b`` are the same, or one holds the other (``x.y`` and ``x.y[0]``, ``x.y.z``)."""
     return a == b or any(b.startswith(a + sep) or a.startswith(b + sep) for sep in ".[")
@@ -67,7 +66,7 @@ def blame(config: DictConfig, key: str, also: tuple[str, ...] = ()) -> tuple[str
             name = str(override).lstrip("+~").split("=")[0]
             if name == candidate or (name not in choices and covers(name, candidate)):  # not a group's choice
                 return candidate, f"the command line's {override}"
-    return key, source_of(config, key)
+    return key, source_of(hydra, key)
 
 
 def sets(text: str, path: list[str]) -> bool:
@@ -83,18 +82,15 @@ def sets(text: str, path: list[str]) -> bool:
     return True
 
 
-def source_of(config: DictConfig, key: str) -> str | None:
+def source_of(hydra: DictConfig, key: str) -> str | None:
     """The YAML file behind the group a dotted ``key`` belongs to (``scenario.n_uavs`` ->
     ``.../scenario/corridor.yaml``) when that file sets it, from the composed config's own
-    record of its choices and search path; ``None`` when it is not a file."""
-    group = (key or "").split(".")[0]
-    hydra = config.get("hydra") if isinstance(config, DictConfig) else None
-    if not group or hydra is None:
-        return None
-    inner = [p for p in re.sub(r"\[\d+\]", "", key).split(".")[1:] if p]
-    choice = hydra.runtime.choices.get(group)
+    record (``hydra``) of its choices and search path; ``None`` when it is not a file."""
+    group = key.split(".")[0]
+    choice = hydra.runtime.choices.get(group) if group else None
     if not choice:
         return None
+    inner = [p for p in re.sub(r"\[\d+\]", "", key).split(".")[1:] if p]
     for source in hydra.runtime.config_sources:
         path, schema = str(source.path), str(source.schema)
         try:
@@ -109,7 +105,6 @@ def source_of(config: DictConfig, key: str) -> str | None:
         except (ModuleNotFoundError, TypeError, ValueError):
             continue
     return None
-
 
 
 def check_trained_dims(handles: Any, scenario: Any, key: str = "scenario.dims", where: str = "") -> None:

@@ -198,16 +198,12 @@ class TrainConfig(RunOptions, WorldApp):
 
 def training_scenario(scenario: ScenarioConfig, experiment: ExperimentConfig) -> ScenarioConfig:
     """``scenario`` with ``experiment.train_env`` applied, checked (the training env's world)."""
-    if not experiment.train_env:
-        return scenario
-    try:
-        return dataclasses.replace(scenario, **dict(experiment.train_env)).check()
-    except ConfigError as exc:
-        raise ConfigError(f"experiment.train_env ({exc.key})", exc.message) from exc
+    return kind_of(scenario, experiment.train_env, "experiment.train_env") if experiment.train_env else scenario
 
 
 def kind_of(scenario: ScenarioConfig, fields: Any, key: str) -> ScenarioConfig:
-    """``scenario`` with one kind of training world's scenario ``fields`` applied, checked."""
+    """``scenario`` with scenario ``fields`` applied (``train_env``'s, or one kind of training world's),
+    checked; an error names ``key``."""
     try:
         return dataclasses.replace(scenario, **dict(fields)).check()
     except ConfigError as exc:

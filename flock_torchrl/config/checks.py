@@ -65,8 +65,7 @@ def count(key: str, value: Any, minimum: int = 1, maximum: int | None = None) ->
 
 
 def fraction(key: str, value: Any, low_open: bool = True) -> None:
-    ok = is_number(value) and (0 < value if low_open else 0 <= value) and value <= 1
-    if not ok:
+    if not (is_number(value) and (0 < value if low_open else 0 <= value) and value <= 1):
         reject(key, f"must lie in {'(0' if low_open else '[0'}, 1], got {value!r}")
 
 

@@ -75,9 +75,8 @@ def register() -> None:
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, resolver)
     cs = ConfigStore.instance()
-    schemas: dict[str, type] = {"scenario": ScenarioConfig, "policy": PolicyConfig,
-                                        "experiment": ExperimentConfig, "logger": LoggerConfig,
-                                        **ALGO_SCHEMAS, **HYDRA_ROOTS}
+    schemas: dict[str, type] = {"scenario": ScenarioConfig, "policy": PolicyConfig, "experiment": ExperimentConfig,
+                                "logger": LoggerConfig, **ALGO_SCHEMAS, **HYDRA_ROOTS}
     for name, schema in schemas.items():
         if f"{name}_schema.yaml" not in cs.repo:  # storing converts the dataclass: a quarter of a compose
             cs.store(name=f"{name}_schema", node=schema)
@@ -188,12 +187,8 @@ def default_checkpoints_dir() -> Path:
 # ---------------------------------------------------------------------------- scenarios
 def scenario_overrides(scenario: str = "train", reading: str | None = None, policy: str | None = None) -> list[str]:
     """The override strings that select a scenario, a reading and (optionally) a policy."""
-    overrides = [f"scenario={scenario}"]
-    if reading is not None:
-        overrides.append(f"reading={reading}")
-    if policy is not None:
-        overrides.append(f"policy={policy}")
-    return overrides
+    chosen = {"scenario": scenario, "reading": reading, "policy": policy}
+    return [f"{group}={name}" for group, name in chosen.items() if name is not None]
 
 
 def compose_world(scenario: str = "train", reading: str | None = None, policy: str | None = None,

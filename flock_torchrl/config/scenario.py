@@ -184,9 +184,7 @@ class ScenarioConfig(Schema):
         obstacle lists come back as lists of floats."""
         k = lambda name: dotted(prefix, name)  # noqa: E731
         choice(k("reading"), self.reading, READINGS)
-        for f in dataclasses.fields(self):  # booleans are booleans (not 2, "yes" or 1)
-            if f.name in BOOLEAN_FIELDS and not isinstance(getattr(self, f.name), bool):
-                reject(k(f.name), f"must be true or false, got {getattr(self, f.name)!r}")
+        check_booleans(vars(self), prefix)
         if self.dims not in (2, 3) or isinstance(self.dims, bool):
             reject(k("dims"), f"must be 2 or 3, got {self.dims!r}")
         # Bounds keep a config from asking for more than any machine holds (the world's
@@ -381,15 +379,16 @@ class Laser:
 
 
 SCENARIO_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig))
-BOOLEAN_FIELDS = frozenset(f.name for f in dataclasses.fields(ScenarioConfig) if f.type in ("bool", bool))
+BOOLEAN_FIELDS = tuple(f.name for f in dataclasses.fields(ScenarioConfig) if f.type in ("bool", bool))
 
 
 def check_booleans(values: Any, prefix: str = "scenario") -> None:
-    """Boolean fields among ``values`` (a mapping) are booleans, before OmegaConf would take
-    ``2`` or ``"yes"`` as true."""
-    for name in BOOLEAN_FIELDS & set(values):
-        if not isinstance(values[name], bool):
+    """Boolean fields among ``values`` (a mapping) are booleans (not 2, "yes" or 1, which OmegaConf
+    would take as true), in the fields' order."""
+    for name in BOOLEAN_FIELDS:
+        if name in values and not isinstance(values[name], bool):
             reject(dotted(prefix, name), f"must be true or false, got {values[name]!r}")
+
 # The scenario fields a policy YAML sets (its sensing, instinct, reward variant, action
 # interface): a checkpoint records them, and evaluation applies them in any scenario. A
 # checkpoint written before a field was added here flies with the scenario's value of it,
@@ -423,7 +422,5 @@ COLLISION_SHAPES = ("paper", "ramp")
 ACTOR_CAMERAS = ("paper", "all_round")
 
 
-__all__ = ["ACTOR_CAMERAS", "COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "FIELDS_BEFORE", "INSTINCT_MODES", "Laser",
-           "POLICY_SCENARIO_FIELDS", "READINGS",
-           "FULL_HEIGHT",
-           "SCENARIO_FIELDS", "ScenarioConfig"]
+__all__ = ["ACTOR_CAMERAS", "COHESION_RANGES", "COLLISION_SHAPES", "ConfigError", "FIELDS_BEFORE", "FULL_HEIGHT",
+           "INSTINCT_MODES", "Laser", "POLICY_SCENARIO_FIELDS", "READINGS", "SCENARIO_FIELDS", "ScenarioConfig"]

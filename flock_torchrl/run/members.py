@@ -119,9 +119,8 @@ class Members:
             log.update({f"{p}train/{name}": float(v.reshape(-1)[k]) for name, v in stats.items()})
             recent = self.recent[k]
             if recent:
-                log[f"{p}train/episode_reward"] = sum(r for r, _, _ in recent) / len(recent)
-                log[f"{p}train/success_rate"] = sum(s for _, s, _ in recent) / len(recent)
-                log[f"{p}train/episode_length"] = sum(n for _, _, n in recent) / len(recent)
+                for i, name in enumerate(("episode_reward", "success_rate", "episode_length")):
+                    log[f"{p}train/{name}"] = sum(r[i] for r in recent) / len(recent)
         if self.k > 1:
             for name in {key.split("/train/")[1] for key in log}:
                 values = [log[key] for key in (f"seed{s}/train/{name}" for s in self.seeds) if key in log]

@@ -122,10 +122,12 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
     after every batch); the collector's env, policy and batch share one device, so it has no
     copy between devices to synchronise."""
     exp = cfg.experiment
-    kwargs = dict(frames_per_batch=(envs[0].num_envs if len(envs) > 1 or cfg.population > 1 else exp.num_envs) * steps,
-                  total_frames=-1,
-                  device=device, init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
-                  auto_register_policy_transforms=False, cudagraph_policy=policy_capture(cfg))
+    worlds = envs[0].num_envs if len(envs) > 1 or cfg.population > 1 else exp.num_envs
+    kwargs = dict(frames_per_batch=worlds * steps, total_frames=-1, device=device,
+                  init_random_frames=init_random or None, exploration_type=ExplorationType.RANDOM,
+                  auto_register_policy_transforms=False,
+                  cudagraph_policy=capture.policy_capture(cfg.device, cfg.cudagraphs))
+
     def single(env: FlockingEnv) -> Collector:
         return Collector(env, policy, track_traj_ids=False, postproc=AgentwiseDone(env.n_agents),
                          return_same_td=reuse_batch, no_cuda_sync=reuse_batch, **kwargs)
@@ -134,12 +136,6 @@ def make_collectors(cfg: TrainConfig, envs: list[FlockingEnv], factory: Any, pol
         [functools.partial(factory, cfg.seed * 1000 + w) for w in range(exp.workers)], policy,
         postproc=AgentwiseDone(envs[0].n_agents), **kwargs)) if exp.workers > 1 else single(envs[0])
     return [first, *(single(env) for env in envs[1:])]
-
-
-def policy_capture(cfg: TrainConfig) -> dict[str, int] | None:
-    """A collector's ``cudagraph_policy``: with ``cudagraphs`` on a GPU, the policy's forward
-    captured as the update is (:func:`flock_torchrl.capture.policy_capture`; none without CUDA)."""
-    return capture.policy_capture(cfg.device, cfg.cudagraphs)
 
 
 class UnreadCursorStorage(LazyTensorStorage):
@@ -178,23 +174,24 @@ def buffer_state(buffer: TensorDictReplayBuffer) -> dict[str, Any]:
     never written are not saved, nor is the whole preallocated storage copied (a view of it would
     save all of it). :func:`restore_buffer` gives the storage its capacity again."""
     state = buffer.state_dict()
+    rows, capacity = int(state["_storage"].get("_len", 0)), buffer.storage.max_size
+    if not 0 < rows < capacity:
+        return state
+    return _rows(state, lambda v: v[:rows].clone() if v.shape[0] == capacity else v)
+
+
+def _rows(state: dict, fn: Any) -> dict:
+    """A replay buffer's state dict with ``fn`` applied to its storage's tensors (the storage's
+    TensorDict metadata, the batch size kept as an attribute of the dict, kept as it is)."""
     storage = state["_storage"]
-    rows, capacity = int(storage.get("_len", 0)), buffer.storage.max_size
     tensors = storage.get("_storage")
-    if isinstance(tensors, dict) and 0 < rows < capacity:
-        state = {**state, "_storage": {**storage, "_storage": _rows(tensors, lambda v: v[:rows].clone()
-                                                                   if v.shape[0] == capacity else v)}}
-    return state
-
-
-def _rows(tensors: dict, fn: Any) -> dict:
-    """A storage's state dict with ``fn`` applied to its tensors (its TensorDict metadata, the
-    batch size kept as an attribute of the dict, kept as it is)."""
+    if not isinstance(tensors, dict):
+        return state
     out = copy.copy(tensors)
     for key, value in tensors.items():
         if isinstance(value, torch.Tensor) and value.dim():
             out[key] = fn(value)
-    return out
+    return {**state, "_storage": {**storage, "_storage": out}}
 
 
 def restore_buffer(buffer: TensorDictReplayBuffer | None, payload: dict[str, Any], run_dir: Path) -> None:
@@ -207,23 +204,17 @@ def restore_buffer(buffer: TensorDictReplayBuffer | None, payload: dict[str, Any
                               "(experiment.keep_buffer_in_checkpoint=false): it cannot be resumed exactly; "
                               "start a new run")
     state = payload["buffer"]
-    storage = state["_storage"]
-    rows, capacity = int(storage.get("_len", 0)), buffer.storage.max_size
-    tensors = storage.get("_storage")
-    if isinstance(tensors, dict) and 0 < rows < capacity:
-        def full(v: torch.Tensor) -> torch.Tensor:
-            if v.shape[0] != rows:
-                return v
+    rows, capacity = int(state["_storage"].get("_len", 0)), buffer.storage.max_size
+    device = buffer.storage.device
+
+    def full(v: torch.Tensor) -> torch.Tensor:
+        if 0 < rows < capacity and v.shape[0] == rows:
             out = v.new_zeros((capacity, *v.shape[1:]))
             out[:rows] = v
-            return out
+            v = out
+        return v if device == "auto" else v.to(device)  # a checkpoint is read on the CPU
 
-        state = {**state, "_storage": {**storage, "_storage": _rows(tensors, full)}}
-        storage, tensors = state["_storage"], state["_storage"]["_storage"]
-    device = buffer.storage.device
-    if isinstance(tensors, dict) and device != "auto":  # a checkpoint is read on the CPU: rows go to the storage's device
-        state = {**state, "_storage": {**storage, "_storage": _rows(tensors, lambda v: v.to(device))}}
-    buffer.load_state_dict(state)
+    buffer.load_state_dict(_rows(state, full))
 
 
 def evaluation_row(cfg: TrainConfig, actor: Any, frames: int) -> dict[str, float]:
@@ -305,5 +296,5 @@ def write_checkpoint(state: dict[str, Any], path: Path) -> Path:
 
 
 __all__ = ["Learner", "TrainResult", "UnreadCursorStorage", "buffer_state", "evaluation_row", "member_evaluations",
-           "policy_capture", "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
+           "restore_rng", "rng_state", "make_collectors", "make_env", "make_envs", "replay_buffer",
            "restore_buffer", "write_checkpoint"]

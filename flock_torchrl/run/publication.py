@@ -34,8 +34,7 @@ import os
 import shutil
 import signal
 import sys
-import threading
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -43,7 +42,7 @@ from ..config import ConfigError
 from ..io import write_failure, write_text
 from ..policies.checkpoint import CheckpointError
 from ..world.spawn import SpawnError
-from .signals import STOP_SIGNALS, Stopped, say
+from .signals import Stopped, say, stop_handlers
 
 FOLDER = ".publish"
 FAULT = "FLOCK_TORCHRL_PUBLISH_FAULT"
@@ -68,16 +67,12 @@ def _files(folder: Path) -> dict[str, tuple[int, int, int]]:
 
 
 def _fsync_folder(folder: Path) -> None:
-    try:
+    with suppress(OSError):
         fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 # ---------------------------------------------------------------------------- the fault hook (tests)
@@ -128,15 +123,8 @@ def held_signals() -> Iterator[list[int]]:
     """Stop signals are noted, not acted on, inside the block (in the main thread; elsewhere no
     handler can be set, and none runs)."""
     noted: list[int] = []
-    if threading.current_thread() is not threading.main_thread():
+    with stop_handlers(lambda signum, frame: noted.append(signum)):
         yield noted
-        return
-    previous = {s: signal.signal(s, lambda signum, frame: noted.append(signum)) for s in STOP_SIGNALS}
-    try:
-        yield noted
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
 
 
 # ---------------------------------------------------------------------------- the publication
@@ -301,10 +289,8 @@ class Publication:
         finally:
             os.close(self._lock)
             self._lock = None
-        try:
+        with suppress(OSError):
             self.folder.rmdir()   # only when empty: a journal left by a failure stays
-        except OSError:
-            pass
 
     def _mirror(self, area: Path) -> None:
         target = self.stage / self._relative(area)
@@ -401,31 +387,27 @@ def entry(run: Callable[[], Any], noted: Sequence[int] = ()) -> int:
     def stop(signum: int, frame: Any) -> None:
         raise Stopped(signum)
 
-    main = threading.current_thread() is threading.main_thread()
-    previous = {s: signal.signal(s, stop) for s in STOP_SIGNALS} if main else {}
-    OUTCOME.update(state=None, name="", root=None)
-    try:
-        if noted:
-            raise Stopped(noted[0])
-        run()
-        return 0
-    except Stopped as exc:
-        say(stopped_line(exc.signum))
-        return 128 + exc.signum
-    except KeyboardInterrupt:
-        say(stopped_line(signal.SIGINT))
-        return 128 + signal.SIGINT
-    except ERRORS as exc:
-        say(f"error: {' '.join(str(exc).split())}")
-        return EXIT_ERROR
-    except OSError as exc:
-        if write_failure(exc) is None and not isinstance(exc, FileNotFoundError):
-            raise
-        say(f"error: {write_failure(exc) or exc}; nothing was published")
-        return EXIT_ERROR
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+    with stop_handlers(stop):
+        OUTCOME.update(state=None, name="", root=None)
+        try:
+            if noted:
+                raise Stopped(noted[0])
+            run()
+            return 0
+        except Stopped as exc:
+            say(stopped_line(exc.signum))
+            return 128 + exc.signum
+        except KeyboardInterrupt:
+            say(stopped_line(signal.SIGINT))
+            return 128 + signal.SIGINT
+        except ERRORS as exc:
+            say(f"error: {' '.join(str(exc).split())}")
+            return EXIT_ERROR
+        except OSError as exc:
+            if write_failure(exc) is None and not isinstance(exc, FileNotFoundError):
+                raise
+            say(f"error: {write_failure(exc) or exc}; nothing was published")
+            return EXIT_ERROR
 
 
 __all__ = ["ERRORS", "FAULT", "FOLDER", "OUTCOME", "Publication", "PublishError", "entry", "held_signals", "recover",

@@ -179,6 +179,4 @@ def write_result(result: EvaluationResult, out_dir: str | os.PathLike, config: M
             write_text(out / "summary.json", json.dumps(_jsonable(summary), indent=2) + "\n")]
 
 
-
-
 __all__ = ["Cell", "EvaluationResult", "Rate", "WILSON_CONFIDENCE", "mean_std", "wilson_interval", "write_result"]

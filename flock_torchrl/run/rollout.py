@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence, Union
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -34,11 +34,12 @@ from ..world.env import FlockingEnv
 from ..world.metrics import METRIC_KEYS
 from .results import EvaluationResult
 
+Scenario = Union[str, ScenarioConfig, Mapping[str, Any]]  # a scenario's name, or a complete scenario
 
-def policy_env(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
-               reading: str | None = None, num_envs: int = 1, seed: int | None = None,
-               device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
-               extras: Sequence[str] = ()) -> FlockingEnv:
+
+def policy_env(handle: PolicyHandle, scenario: Scenario = "train", reading: str | None = None, num_envs: int = 1,
+               seed: int | None = None, device: str | torch.device = "cpu",
+               env_overrides: Mapping[str, Any] | None = None, extras: Sequence[str] = ()) -> FlockingEnv:
     """An env of a scenario in the policy's world: its reading, its scenario fields and the
     env keys it reads. A complete scenario (not a name) is used as given and must agree with
     the policy's fields (a contender's declared world replaces them: it flies in the same world
@@ -81,8 +82,6 @@ class CheckedContender:
         raise ConfigError(self.key, f"{self.name} {what} (at step {self.steps} of its episodes)")
 
     def __call__(self, td: TensorDict) -> TensorDict:
-        from tensordict import TensorDictBase
-
         self.steps += 1
         try:
             out = self.module(td)
@@ -111,10 +110,9 @@ class CheckedContender:
         return out
 
 
-def try_contender(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
-                  reading: str | None = None, device: str | torch.device = "cpu",
-                  env_overrides: Mapping[str, Any] | None = None, key: str = "contenders",
-                  num_envs: int = 2, steps: int = 3) -> None:
+def try_contender(handle: PolicyHandle, scenario: Scenario = "train", reading: str | None = None,
+                  device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
+                  key: str = "contenders", num_envs: int = 2, steps: int = 3) -> None:
     """Build a contender for a small batch of its first scenario and step it a few times,
     before any row is evaluated: a factory that raises or returns no module, an output the env
     cannot take, the reading of a checkpoint — each is one :class:`ConfigError` naming it."""
@@ -183,8 +181,8 @@ def run_episodes(env: FlockingEnv, policy: Any, progress: bool | None = None,
     return records.cpu(), steps
 
 
-def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "train", reading: str | None = None,
-             n_episodes: int = 500, seed: int | None = None, device: str | torch.device | None = None,
+def evaluate(policy: Any, scenario: Scenario = "train", reading: str | None = None, n_episodes: int = 500,
+             seed: int | None = None, device: str | torch.device | None = None,
              env_overrides: Mapping[str, Any] | None = None, max_steps: int | None = None, *,
              checkpoints_dir: str | os.PathLike | None = None) -> EvaluationResult:
     """Evaluate a policy on ``n_episodes`` seeded episodes of a scenario (section 5 protocol).
@@ -214,11 +212,10 @@ def evaluate(policy: Any, scenario: str | ScenarioConfig | Mapping[str, Any] = "
     return EvaluationResult.pooled(results)
 
 
-def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mapping[str, Any] = "train",
-                    reading: str | None = None, n_episodes: int = 500, seed: int | None = None,
-                    device: str | torch.device = "cpu", env_overrides: Mapping[str, Any] | None = None,
-                    contender_key: str = "contenders", log: Callable[[str], None] | None = None
-                    ) -> EvaluationResult:
+def evaluate_handle(handle: PolicyHandle, scenario: Scenario = "train", reading: str | None = None,
+                    n_episodes: int = 500, seed: int | None = None, device: str | torch.device = "cpu",
+                    env_overrides: Mapping[str, Any] | None = None, contender_key: str = "contenders",
+                    log: Callable[[str], None] | None = None) -> EvaluationResult:
     """One policy (one checkpoint, controller or module) on ``n_episodes`` seeded episodes: the
     protocol's unit that :func:`evaluate`, the apps, the tables and the tuning all run. A
     contender's every output is checked (:class:`CheckedContender`, errors under
@@ -236,9 +233,8 @@ def evaluate_handle(handle: PolicyHandle, scenario: str | ScenarioConfig | Mappi
         wall_time_s=time.perf_counter() - start, source=handle.source)
 
 
-def evaluate_members(actor: torch.nn.Module, params: TensorDictBase, scenario: str | ScenarioConfig | Mapping[str, Any],
-                     n_episodes: int, seed: int | None = None, device: str | torch.device = "cpu"
-                     ) -> list[EvaluationResult]:
+def evaluate_members(actor: torch.nn.Module, params: TensorDictBase, scenario: Scenario, n_episodes: int,
+                     seed: int | None = None, device: str | torch.device = "cpu") -> list[EvaluationResult]:
     """K actors of one architecture (``actor``'s, with member k's weights ``params[k]``, the
     layout of ``TensorDict.from_module(actor)`` stacked ``[K]``) on the same ``n_episodes``
     seeded episodes, in one batched rollout of ``K * n_episodes`` worlds: what a population's

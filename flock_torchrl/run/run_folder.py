@@ -70,14 +70,11 @@ class RunLock:
             self.lock = None
 
 
-def clean_stale_temporaries(run_dir: Path) -> list[Path]:
+def clean_stale_temporaries(run_dir: Path) -> None:
     """Remove the temporary files an atomic write leaves when its process is killed
     (``.<name>.<random>.tmp``); only the run's own process, holding the lock, calls this."""
-    removed = []
     for path in run_dir.glob(".*.tmp"):
         path.unlink(missing_ok=True)
-        removed.append(path)
-    return removed
 
 
 def truncate_log(path: Path, keep: Callable[[list[str]], bool], header: bool = True, width: int | None = None,
@@ -159,10 +156,7 @@ def truncate_scalar_logs(run_dir: Path, frames: int | None) -> None:
 def logger_hparams(resolved: dict[str, Any]) -> dict[str, Any]:
     """The resolved config as flat hyperparameters every logger takes: numbers, strings and
     booleans as they are; lists and ``None`` as their text (TensorBoard refuses anything else)."""
-    out = {}
-    for key, value in flatten(resolved).items():
-        out[key] = value if isinstance(value, (bool, int, float, str)) else str(value)
-    return out
+    return {k: v if isinstance(v, (bool, int, float, str)) else str(v) for k, v in flatten(resolved).items()}
 
 
 def make_logger(backend: str, project: str, mode: str, run_dir: Path, name: str):
@@ -201,7 +195,7 @@ def write_run_config(run_dir: Path, resolved: dict[str, Any], hydra: dict[str, A
     its own, with its Hydra settings and, as its output folder, the folder it is read from)."""
     write_text(run_dir / "config.yaml", OmegaConf.to_yaml(OmegaConf.create(resolved)))
     resume = {"defaults": ["train_schema", {"override hydra/job_logging": "stdout"}, "_self_"],
-              **{k: v for k, v in resolved.items()}, "resume": "true",
+              **resolved, "resume": "true",
               "hydra": {**hydra, "run": {"dir": RUN_FOLDER}}}
     text = OmegaConf.to_yaml(OmegaConf.create(resume))
     write_text(run_dir / f"{RESUME_CONFIG}.yaml",

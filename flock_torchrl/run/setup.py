@@ -48,11 +48,6 @@ def config_differences(saved: Any, requested: Any, allowed: Sequence[str]) -> li
                   if not free(k) and not added(k) and a.get(k, "<absent>") != b.get(k, "<absent>"))
 
 
-def memory_estimate(cfg: TrainConfig) -> dict[str, int]:
-    """Bytes the run will hold, by the config key that sets them (:func:`.memory.train_bytes`)."""
-    return train_bytes(cfg)
-
-
 def prepare(cfg: TrainConfig, run_dir: Path) -> None:
     """Everything that can refuse a run before its folder changes: the swarm can be spawned,
     the run fits in memory, the folder's state agrees with ``resume``, the folder is writable.
@@ -64,7 +59,7 @@ def prepare(cfg: TrainConfig, run_dir: Path) -> None:
         except ConfigError as exc:
             raise ConfigError("experiment.swarm_sizes" if cfg.experiment.swarm_sizes else exc.key,
                               exc.message) from None
-    check_memory(memory_estimate(cfg), "the run")
+    check_memory(train_bytes(cfg), "the run")  # bytes by the key that sets them
     exists = (run_dir / LAST).exists()
     mode = cfg.resume_mode
     if mode == "never" and exists:
@@ -142,5 +137,5 @@ def hydra_settings() -> dict[str, Any]:
             "callbacks": OmegaConf.to_container(hydra.callbacks, resolve=True) if hydra.callbacks else {}}
 
 
-__all__ = ["check_episode_logs", "checkpoint_meta", "config_differences", "hydra_output_dir", "hydra_settings", "make_train_config",
-           "memory_estimate", "prepare", "resume_payload"]
+__all__ = ["check_episode_logs", "checkpoint_meta", "config_differences", "hydra_output_dir", "hydra_settings",
+           "make_train_config", "prepare", "resume_payload"]

@@ -144,7 +144,7 @@ def ship_scenario_collection(reading: str, runs_dir: Path, experiment: str, name
     command = f"scripts/ship.py only={dest.name}"
     made_by = f"`make {target}` ({command})" if target else f"`python {command}`"
     return ship_collection(plan, dest, reading, f"Shipped checkpoints: {dest.name}", f"{source}/", log,
-                           made_by=made_by, publication=None)
+                           made_by=made_by)
 
 
 def refusal(conflicts: list[str]) -> str:

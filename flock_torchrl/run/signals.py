@@ -25,8 +25,9 @@ import signal
 import sys
 import threading
 import time
+from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
 # Seconds the main process waits for collector processes to stop before killing them.
@@ -38,6 +39,19 @@ def say(line: str) -> None:
     newline apart, so the jobs of a joblib sweep, which share one stderr, ran lines together."""
     sys.stderr.write(line + "\n")
     sys.stderr.flush()
+
+
+@contextmanager
+def stop_handlers(handler: Any) -> Iterator[None]:
+    """``handler`` for every stop signal inside the block, the previous ones put back after (in the
+    main thread; elsewhere no handler can be set, and none is)."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = {s: signal.signal(s, handler) for s in STOP_SIGNALS} if main else {}
+    try:
+        yield
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
 
 
 def job_tag() -> str:
@@ -212,10 +226,8 @@ def end_with_parent(parent: int, poll: float = 0.5, grace: float = SHUTDOWN_TIME
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(poll)
-        try:
+        with suppress(OSError, ValueError):  # its stderr may have gone with it: stop all the same
             say(f"the sweep's process (PID {parent}) is gone: stopping its job worker (PID {os.getpid()}) with SIGTERM")
-        except (OSError, ValueError):  # its stderr went with it: stop all the same
-            pass
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(grace)
         leave(128 + signal.SIGTERM)
@@ -232,10 +244,8 @@ def leave(status: int) -> None:
     """Exit this process now, with ``status``, its output flushed (an orphaned job worker: nobody
     waits for its result, and its pool would wait for a parent that is gone)."""
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with suppress(OSError, ValueError):
             stream.flush()
-        except (OSError, ValueError):
-            pass
     os._exit(status)
 
 
@@ -262,12 +272,8 @@ def start_resource_tracker() -> None:
     would kill it, and its replacement then prints tracebacks for every shared block."""
     from multiprocessing import resource_tracker
 
-    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
-    try:
+    with stop_handlers(signal.SIG_IGN):
         resource_tracker.ensure_running()
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
 
 
 def abandon_queues() -> None:
@@ -283,10 +289,8 @@ def abandon_queues() -> None:
     for obj in gc.get_objects():
         kind = type(obj)  # type(): some objects warn when asked for __class__
         if issubclass(kind, WeightSyncScheme):
-            try:
+            with suppress(Exception):  # its workers are gone: what it could not send does not matter
                 obj.shutdown()
-            except Exception:  # its workers are gone: what it could not send does not matter
-                pass
     for obj in gc.get_objects():
         if issubclass(type(obj), Queue):
             obj.cancel_join_thread()
@@ -317,9 +321,7 @@ def start_workers(make: Any, poll: float = 0.05, grace: float = 5.0) -> Any:
             box["error"] = exc
 
     received: list[int] = []
-    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum))
-                for signum in STOP_SIGNALS}
-    try:
+    with stop_handlers(lambda signum, frame: received.append(signum)):
         thread = threading.Thread(target=build, name="collector-start", daemon=True)
         thread.start()
         while thread.is_alive() and not received:
@@ -335,13 +337,11 @@ def start_workers(make: Any, poll: float = 0.05, grace: float = 5.0) -> Any:
             box.clear()  # the half-built collector: its finalizers run now, not while Python exits
             abandon_queues()
             raise Stopped(received[0])
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
     if "error" in box:
         raise box["error"]
     return box["collector"]
 
 
-__all__ = ["APP_SIGNALS", "AppSignals", "SHUTDOWN_TIMEOUT", "STOPPED_WORKER", "STOP_SIGNALS", "SWEEP_PARENT", "Signals", "Stopped", "TrainingInterrupted", "end_with_parent",
-           "ignore_stop_signals", "leave", "orphaned", "shutdown", "start_resource_tracker", "start_workers"]
+__all__ = ["APP_SIGNALS", "AppSignals", "SHUTDOWN_TIMEOUT", "STOPPED_WORKER", "STOP_SIGNALS", "SWEEP_PARENT", "Signals",
+           "Stopped", "TrainingInterrupted", "end_with_parent", "ignore_stop_signals", "leave", "orphaned", "shutdown",
+           "start_resource_tracker", "start_workers", "stop_handlers"]

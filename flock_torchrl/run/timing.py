@@ -77,15 +77,14 @@ class TimeSplit(dict):
             yield item
 
 
-def rates(split: dict[str, float], counters: dict[str, Any], members: int = 1, prefix: str = "perf/"
-          ) -> dict[str, float]:
+def rates(split: dict[str, float], counters: dict[str, Any], members: int = 1) -> dict[str, float]:
     """Updates and frames per second of a loop's own time: the process's (every member's, for
     ``members``), and for several members each one's (``member_...``)."""
     updates = counters["updates"] / max(split["sampling"] + split["update"], 1e-9)  # each member's
     frames = counters["frames"] / max(split["collection"], 1e-9)
-    out = {f"{prefix}updates_per_s": members * updates, f"{prefix}frames_per_s": members * frames}
+    out = {"perf/updates_per_s": members * updates, "perf/frames_per_s": members * frames}
     if members > 1:
-        out.update({f"{prefix}member_updates_per_s": updates, f"{prefix}member_frames_per_s": frames})
+        out.update({"perf/member_updates_per_s": updates, "perf/member_frames_per_s": frames})
     return out
 
 
