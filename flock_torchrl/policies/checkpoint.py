@@ -23,6 +23,7 @@ import os
 import pickle
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Iterator
 
 import torch
@@ -319,9 +320,7 @@ class SharedPolicy(TensorDictModuleBase):
             raise CheckpointError(f"{origin}: meta.scenario is not a scenario ({' '.join(str(exc).split())})"
                                   ) from None
         self.flock_meta = {**meta, "policy_scenario": policy_fields(meta, scenario)}
-        # Sized from what the checkpoint stores (no world is built): the observation of its
-        # scenario, the action box of its action mode (the policy's [-1, 1]^2, or velocities;
-        # [-1, 1]^3 in a 3-D world, docs/specification.md section 11).
+        # Sized from what the checkpoint stores (no world is built): its scenario's observation and action box.
         limit = 1.0 if scenario.action_mode == "policy" else float(scenario.v_max)
         self.dims = scenario.dims
         self._sizes = (observation_size(scenario), limit)
@@ -340,7 +339,8 @@ class SharedPolicy(TensorDictModuleBase):
         self._origin = origin
         fields = dataclasses.asdict(scenario)
         # The observation's length in either dimension, to name a world of the other one.
-        self._observation_sizes = {dims: observation_size(_Dims(fields, dims)) for dims in (2, 3)}
+        self._observation_sizes = {dims: observation_size(SimpleNamespace(**{**fields, "dims": dims}))
+                                   for dims in (2, 3)}
 
     def _build(self, device: torch.device) -> Any:
         """A fresh actor of this policy's sizes on ``device``, with its action box there too."""
@@ -384,14 +384,6 @@ class SharedPolicy(TensorDictModuleBase):
         self.actor.requires_grad_(grad)
         self._device = device
         return self
-
-
-class _Dims:
-    """A scenario's fields with another ``dims``: what :func:`observation_size` reads."""
-
-    def __init__(self, fields: dict[str, Any], dims: int) -> None:
-        self.__dict__.update(fields)
-        self.dims = dims
 
 
 def load_policy(path: str | os.PathLike, device: str | torch.device | None = None, member: int | None = None

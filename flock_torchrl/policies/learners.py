@@ -1,16 +1,10 @@
 """The learners, wired from TorchRL parts only (no hand-written losses): SAC and DDPG for K members
 (:class:`OffPolicyLearner`; K = 1 a solo run), PPO for one.
 
-Each learner owns its networks, TorchRL loss module, optimiser and target updates, and exposes
-the same small surface to the trainer (:class:`flock_torchrl.run.parts.Learner`):
-
-* ``collector_policy`` — the module the collector runs (with exploration), over every member's worlds;
-* ``actor`` — the network a member's policy is (``actor_state(k)``: member k's weights, what it ships;
-  deterministic under ``ExplorationType.DETERMINISTIC``);
-* ``off_policy`` — whether transitions go through a replay buffer;
-* ``update(batch) -> dict[str, Tensor]`` — one gradient step (off-policy) or one PPO pass
-  (on-policy); the statistics stay tensors (``[K]`` per member), so an update never waits on a ``.item()``;
-* ``state_dict() / load_state_dict()`` — everything a checkpoint needs.
+Each learner owns its networks, TorchRL loss module, optimiser and target updates behind the
+trainer's small surface (:class:`flock_torchrl.run.parts.Learner`); ``actor_state(k)`` is member k's
+weights, what it ships. ``update(batch)`` is one gradient step (off-policy) or one PPO pass; its
+statistics stay tensors (``[K]`` per member), so an update never waits on a ``.item()``.
 
 Speed: one Adam per learner with a parameter group per network (each its own learning rate,
 as Table I), fused where the device supports it (one kernel for every parameter); with
@@ -114,12 +108,15 @@ def _clip(params, max_norm: float) -> None:
         torch.nn.utils.clip_grad_norm_(params, max_norm)
 
 
-def check_finite(losses: dict[str, torch.Tensor]) -> None:
-    """Stop a diverged run: a non-finite loss raises ``FloatingPointError`` naming it."""
-    values = torch.stack([v.detach().reshape(()) for v in losses.values()])
+def check_finite(losses: dict[str, torch.Tensor], members: int = 1) -> None:
+    """Stop a diverged run: a non-finite loss (each a scalar, or ``[members]``) raises
+    ``FloatingPointError`` naming it, and of several members the first member where it is not finite."""
+    values = torch.stack([v.detach().reshape(-1) for v in losses.values()])
     if not bool(torch.isfinite(values).all()):
-        name, value = next((k, v) for k, v in losses.items() if not torch.isfinite(v).all())
-        raise FloatingPointError(f"{name} is {value.item()}: training diverged")
+        name, member = next((k, int((~torch.isfinite(v.reshape(-1))).nonzero()[0, 0])) for k, v in losses.items()
+                            if not torch.isfinite(v).all())
+        of = f" of member {member}" if members > 1 else ""
+        raise FloatingPointError(f"{name}{of} is {losses[name].reshape(-1)[member].item()}: training diverged")
 
 
 @dataclass
@@ -229,14 +226,9 @@ class OffPolicyLearner:
         leaves: dict[str, list[torch.Tensor]] = {}
         for key in parts.trained:
             sub = stacked.get(key)
-            if isinstance(sub, torch.Tensor):
-                param = nn.Parameter(sub)
-                stacked.set(key, param)
-                leaves[key] = [param]
-            else:
-                sub = sub.apply(nn.Parameter)
-                stacked.set(key, sub)
-                leaves[key] = list(sub.values(True, True))
+            sub = nn.Parameter(sub) if isinstance(sub, torch.Tensor) else sub.apply(nn.Parameter)
+            stacked.set(key, sub)
+            leaves[key] = [sub] if isinstance(sub, torch.Tensor) else list(sub.values(True, True))
         self.params = stacked
         lrs = {"actor_network_params": algo_cfg.lr_actor, "qvalue_network_params": algo_cfg.lr_critic,
                "value_network_params": algo_cfg.lr_critic, "log_alpha": getattr(algo_cfg, "lr_alpha", None)}
@@ -278,12 +270,7 @@ class OffPolicyLearner:
             return self._update(batch)
         out = self._losses(self.params, batch)
         terms = {k: out[k] for k in self.parts.terms}
-        values = torch.stack([v.detach() for v in terms.values()])
-        if not bool(torch.isfinite(values).all()):
-            name, member = next((k, int((~torch.isfinite(v)).nonzero()[0, 0])) for k, v in terms.items()
-                                if not torch.isfinite(v).all())
-            of = f" of member {member}" if self.members > 1 else ""
-            raise FloatingPointError(f"{name}{of} is {terms[name][member].item()}: training diverged")
+        check_finite(terms, self.members)
         return self._step(out, terms)
 
     def check(self) -> None:
@@ -305,10 +292,7 @@ class OffPolicyLearner:
                  for name, group in zip(("actor", "critic"), self._clip_groups)}
         if self.cfg.max_grad_norm > 0:
             for group in self._clip_groups:
-                if self.members == 1:
-                    _clip(group, self.cfg.max_grad_norm)
-                else:
-                    clip_per_member(group, self.cfg.max_grad_norm)
+                (_clip if self.members == 1 else clip_per_member)(group, self.cfg.max_grad_norm)
         self.optimizer.step()
         with torch.no_grad():
             for source, target in self._target_pairs:
@@ -396,8 +380,7 @@ class PPOLearner:
         self.loss = ClipPPOLoss(
             actor_network=self.actor, critic_network=self.value, clip_epsilon=cfg.clip_epsilon,
             entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff, loss_critic_type=cfg.loss_critic_type,
-            normalize_advantage=cfg.normalize_advantage,
-        )
+            normalize_advantage=cfg.normalize_advantage)
         self.loss.set_keys(action=ACTION, sample_log_prob=LOG_PROB, value=("agents", "state_value"),
                            advantage=("agents", "advantage"), value_target=("agents", "value_target"),
                            **AGENT_KEYS)

@@ -12,7 +12,6 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data.replay_buffers.samplers import Sampler
 
 
-
 class MemberSampler(Sampler):
     """Uniform sampling of each member's own transitions from a storage whose items are
     population rows ``[K]`` (one transition per member, written together).

@@ -96,15 +96,9 @@ def actor_of_sizes(n_obs: int, low: torch.Tensor, high: torch.Tensor, *, device:
     net = nn.Sequential(shared_mlp(n_obs, 2 * n_act, hidden, depth, device),
                         NormalParamExtractor(scale_mapping="biased_softplus_1.0", scale_lb=1e-4))
     module = TensorDictModule(net, in_keys=[OBS], out_keys=[LOC, SCALE])
-    return ProbabilisticActor(
-        module=module,
-        in_keys=[LOC, SCALE],
-        out_keys=[ACTION],
-        distribution_class=TanhNormal,
-        distribution_kwargs={"low": low, "high": high},
-        return_log_prob=return_log_prob,
-        log_prob_key=LOG_PROB,
-    )
+    return ProbabilisticActor(module=module, in_keys=[LOC, SCALE], out_keys=[ACTION], distribution_class=TanhNormal,
+                              distribution_kwargs={"low": low, "high": high}, return_log_prob=return_log_prob,
+                              log_prob_key=LOG_PROB)
 
 
 class SamplingActor(TensorDictModuleBase):

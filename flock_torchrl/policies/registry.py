@@ -190,7 +190,7 @@ def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") ->
 
     if isinstance(spec, DictConfig):
         spec = OmegaConf.to_container(spec, resolve=True)
-    if isinstance(spec, (str, os.PathLike)) and not _is_file_target(str(spec)) and _is_path(spec):
+    if isinstance(spec, (str, os.PathLike)) and not is_file_target(str(spec)) and _is_path(spec):
         handle = checkpoint_handle(resolve_path(spec), device)
         handle.kind, handle.name = "contender", f"{handle.name} ({Path(spec).stem})"
         return handle
@@ -200,7 +200,7 @@ def contender_handle(spec: Any, device: str = "cpu", key: str = "contenders") ->
     target = options["_target_"]
     factory = _factory(target, key)
     del options["_target_"]
-    name = str(options.pop("name", _default_name(target)))
+    name = str(options.pop("name", contender_name(target)))
     scenario = dict(options.pop("scenario", {}) or {})
     declared = getattr(factory, "scenario", None)
     if declared is not None and not isinstance(declared, Mapping):
@@ -264,14 +264,6 @@ def describe(value: Any) -> str:
         f"a {type(value).__name__}"
 
 
-def _default_name(target: str) -> str:
-    return contender_name(target)
-
-
-def _is_file_target(text: str) -> bool:
-    return is_file_target(text)
-
-
 def _factory(target: str, key: str) -> Callable[..., Any]:
     """The callable ``target`` names: ``pkg.module.function`` (importable from ``sys.path``)
     or ``path/to/file.py:function`` (loaded from that file, relative to the working folder)."""
@@ -279,7 +271,7 @@ def _factory(target: str, key: str) -> Callable[..., Any]:
 
     from hydra.utils import get_method
 
-    if not _is_file_target(target):
+    if not is_file_target(target):
         try:
             return get_method(target)
         except Exception as exc:
@@ -339,10 +331,7 @@ def resolve(policy: Any, reading: str | None = None, checkpoints_dir: str | os.P
             raise no_checkpoint(path)
         handles = checkpoint_handles(path, device, member)
     else:
-        if policy_config is not None:
-            config, scenario = policy_config, {}
-        else:
-            config, scenario = policy_config_of(str(policy), reading)
+        config, scenario = (policy_config, {}) if policy_config is not None else policy_config_of(str(policy), reading)
         if config.kind == "rule":
             handles = [rule_handle(config, scenario)]
         else:

@@ -1,9 +1,5 @@
-"""A scripted policy with a known answer: steer straight at the goal.
-
-It reads only ``o_g`` of ``("agents", "observation")`` and ignores obstacles and neighbours,
-so its episodes have a known outcome in S1 (tests, timing, sanity checks, a template for a
-controller of your own).
-"""
+"""A scripted policy with a known answer, :func:`goal_seeking_policy` (also a template for a
+controller of your own)."""
 
 from __future__ import annotations
 

@@ -22,9 +22,7 @@ def action_to_command(action: torch.Tensor, heading: torch.Tensor, space: Space 
     Args:
         action: ``[..., 2]`` (in space ``[..., 3]``) in ``[-1, 1]``.
         heading: ``[...]`` current heading ``phi``.
-
-    Returns:
-        ``[..., 2]`` (``[..., 3]``) velocity command (not yet clipped).
+    Returns ``[..., 2]`` (``[..., 3]``) velocity command (not yet clipped).
     """
     direction = heading + action[..., 0] * (math.pi / 2)
     speed = action[..., 1] + 2.0
@@ -41,18 +39,15 @@ def clip_command(command: torch.Tensor, v_max: float) -> torch.Tensor:
     return command.clamp(-v_max, v_max)
 
 
-def first_order_step(
-    position: torch.Tensor, velocity: torch.Tensor, command: torch.Tensor, dt: float, tau_v: float
-) -> tuple[torch.Tensor, torch.Tensor]:
+def first_order_step(position: torch.Tensor, velocity: torch.Tensor, command: torch.Tensor, dt: float, tau_v: float
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """One semi-implicit Euler step of Eq. 1.
 
     ``v <- v + dt/tau_v (v_cmd - v)``, then ``p <- p + dt v`` (the new velocity).
 
     Args:
         position, velocity, command: ``[..., 2]``; the command is used as given (clip first).
-
-    Returns:
-        ``(position, velocity)`` after the step.
+    Returns ``(position, velocity)`` after the step.
     """
     velocity = velocity + (dt / tau_v) * (command - velocity)
     return position + dt * velocity, velocity

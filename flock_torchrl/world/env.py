@@ -32,11 +32,9 @@ class FlockingEnv(EnvBase):
     ``observation`` [17], the critic's ``state`` [20], the ``reward``; ``done``,
     ``terminated`` and ``truncated`` are shared by the swarm, ``[B, 1]`` at the root, and
     ``"episode"`` holds the running section 5 metrics of each world (final when ``done``).
-    More keys on request (``extras``): ``"physics"`` (``position``, ``velocity``,
-    ``heading``, ``goal``, moving obstacles' ``("obstacles", "position")``, the episode's drawn
-    obstacles ``("obstacles", "drawn_circles")`` and ``("obstacles", "drawn_rectangles")``), ``"command"``
-    (the executed velocity ``command`` and the ``instinct`` flags), ``"laser"`` (the sensed
-    ``scan`` [36] and the obstacle each beam hit, ``scan_obstacle``).
+    More keys on request (``extras``, :data:`~.keys.EXTRAS`): ``"physics"`` (positions, velocities,
+    headings, goal, moving and drawn obstacles), ``"command"`` (the executed velocity ``command``
+    and the ``instinct`` flags), ``"laser"`` (the sensed ``scan`` and the obstacle each beam hit).
 
     The worlds' state is one ``TensorDict[B]`` (:attr:`world`): saving is a clone, a subset
     (:meth:`subset`) an index, a partial reset (``"_reset"``) a masked write of freshly drawn
@@ -333,9 +331,8 @@ class FlockingEnv(EnvBase):
 
         Every tensor must have the shape and dtype this env keeps (no silent casts: a float64
         state would not continue bit for bit); anything else is a ``ValueError`` naming the key."""
-        world = restored_worlds(self.cfg, state, self.num_envs, self._empty_world(sensed=True), self.reserve,
-                                self.reset_pool, self.device)
-        self.world = world
+        self.world = restored_worlds(self.cfg, state, self.num_envs, self._empty_world(sensed=True), self.reserve,
+                                     self.reset_pool, self.device)
         self._generator.set_state(state["generator"])
         self._sensed_once = True
         self._restored = True

@@ -9,17 +9,10 @@ circles' starts, from the goal disc (radius ``goal_radius``) and, at least
 stay clear of it. They are drawn with the env's generator after everything else a reset draws,
 so a scenario without them draws exactly the numbers it drew before they existed.
 
-Placement, for all worlds at once: the sizes first, then one obstacle after the other (a loop
-over the obstacles, never over worlds), each centre drawn uniformly where the obstacle fits the
-region and redrawn in the worlds where it conflicts, for at most ``spawn_max_tries`` rounds. A
-world where some obstacle is still not placed then takes its whole field from a fixed grid of
-cells (:func:`cell_boxes`), each large enough for the largest obstacle plus the clearance:
-distinct cells keep their obstacles ``random_clearance`` apart by construction (each obstacle
-stays half the clearance inside its cell), so only cells half the clearance from the start disc,
-the goal and the other obstacles need choosing. :func:`check_forest`
-counts those cells, when the config is built, for every swarm centre Eq. 30 can draw (and the
-moving circles' worst case), and refuses a field the grid cannot always hold, naming the key; an
-accepted config never fails mid-run and the sampler never hangs.
+Placement, for all worlds at once: by rejection, one obstacle after the other
+(:func:`place_by_rejection`); a world where that fails takes its whole field from a fixed grid of
+cells (:func:`place_on_cells`), which :func:`check_forest` proves, when the config is built, can
+always hold it: an accepted config never fails mid-run and the sampler never hangs.
 
 Shapes are handled as axis-aligned *rounded boxes*, ``[..., 5]`` = ``(cx, cy, half_x, half_y,
 rounding)``: a circle is ``(cx, cy, 0, 0, r)``, a rectangle ``(cx, cy, w/2, h/2, 0)``, a point
@@ -123,7 +116,8 @@ def conflicts(box: torch.Tensor, others: torch.Tensor, clearance: float) -> torc
 
 
 # ---------------------------------------------------------------------------- drawing
-def _uniform(shape, generator, device, low=0.0, high=1.0):
+def uniform(shape, generator, device, low=0.0, high=1.0):
+    """Draws uniform in ``[low, high)`` of ``shape`` (``low``, ``high``: numbers or tensors that broadcast)."""
     return low + (high - low) * torch.rand(shape, generator=generator, device=device)
 
 
@@ -131,8 +125,8 @@ def draw_shapes(cfg: ScenarioConfig, batch: int, generator: torch.Generator, dev
     """Sizes of the drawn obstacles, centres still 0: ``[B, M, 5]`` rounded boxes, circles
     first (radius uniform in ``random_circle_radius``), then rectangles (width and height
     each uniform in ``random_rectangle_size``)."""
-    radius = _uniform((batch, cfg.random_circles, 1), generator, device, *cfg.random_circle_radius)
-    sides = _uniform((batch, cfg.random_rectangles, 2), generator, device, *cfg.random_rectangle_size)
+    radius = uniform((batch, cfg.random_circles, 1), generator, device, *cfg.random_circle_radius)
+    sides = uniform((batch, cfg.random_rectangles, 2), generator, device, *cfg.random_rectangle_size)
     circles = circle_boxes(torch.cat((torch.zeros_like(radius).expand(-1, -1, 2), radius), -1))
     rectangles = rectangle_boxes(torch.cat((torch.zeros_like(sides), sides), -1))
     return torch.cat((circles, rectangles), 1)
@@ -154,21 +148,19 @@ def place_by_rejection(cfg: ScenarioConfig, shapes: torch.Tensor, fixed: torch.T
     it is closer than ``random_clearance`` to ``fixed [B, P, 5]`` or an obstacle placed before
     it, for at most ``spawn_max_tries`` rounds. A world whose obstacle is still in conflict is
     *stuck*; its later obstacles are not tried.
-
-    Returns:
-        ``(boxes [B, M, 5], stuck [B])``; a stuck world's boxes are meaningless.
+    Returns ``(boxes [B, M, 5], stuck [B])``; a stuck world's boxes are meaningless.
     """
     batch, m = shapes.shape[:2]
     device, clearance = shapes.device, cfg.random_clearance
     low, high = centre_bounds(cfg, shapes)
     placed, stuck = fixed, torch.zeros(batch, dtype=torch.bool, device=device)
     for j in range(m):  # the drawn obstacles (a handful), each for every world at once
-        box = torch.cat((_uniform((batch, 2), generator, device, low[:, j], high[:, j]), shapes[:, j, 2:]), -1)
+        box = torch.cat((uniform((batch, 2), generator, device, low[:, j], high[:, j]), shapes[:, j, 2:]), -1)
         bad = conflicts(box, placed, clearance) & ~stuck
         for _ in range(cfg.spawn_max_tries):
             if not bool(bad.any()):
                 break
-            fresh = torch.cat((_uniform((batch, 2), generator, device, low[:, j], high[:, j]), shapes[:, j, 2:]), -1)
+            fresh = torch.cat((uniform((batch, 2), generator, device, low[:, j], high[:, j]), shapes[:, j, 2:]), -1)
             box = torch.where(bad[:, None], fresh, box)
             bad = conflicts(box, placed, clearance) & ~stuck
         stuck = stuck | bad
@@ -224,10 +216,10 @@ def place_on_cells(cfg: ScenarioConfig, shapes: torch.Tensor, fixed: torch.Tenso
     free = free_cells(cfg, cells, fixed)                                               # [W, G]
     if bool((free.sum(-1) < m).any()):
         raise SpawnError(f"fewer than {m} free cells for the drawn obstacles (a config check_forest should refuse)")
-    score = torch.where(free, _uniform(free.shape, generator, device), torch.full_like(free, 2.0, dtype=shapes.dtype))
+    score = torch.where(free, uniform(free.shape, generator, device), torch.full_like(free, 2.0, dtype=shapes.dtype))
     cell = cells[score.argsort(-1)[:, :m]]                                             # [W, M, 5]
     room = (cell[..., 2:4] - shapes[..., 2:4] - shapes[..., 4:] - cfg.random_clearance / 2).clamp_min(0.0)
-    centre = cell[..., :2] + room * _uniform((w, m, 2), generator, device, -1.0, 1.0)
+    centre = cell[..., :2] + room * uniform((w, m, 2), generator, device, -1.0, 1.0)
     return torch.cat((centre, shapes[..., 2:]), -1)
 
 
@@ -266,9 +258,9 @@ def lift_drawn(cfg: ScenarioConfig, circles: torch.Tensor, rectangles: torch.Ten
     ground = cfg.altitude[0]
     if not drawn_count(cfg):
         return circles.new_zeros(batch, 0, 5), circles.new_zeros(batch, 0, 6), circles.new_zeros(batch, 0, 4)
-    top_c = _uniform((batch, n_cyl, 1), generator, device, *cfg.random_heights)
-    top_r = _uniform((batch, rectangles.shape[1], 1), generator, device, *cfg.random_heights)
-    sphere_z = _uniform((batch, n_sph, 1), generator, device, *cfg.random_sphere_altitude)
+    top_c = uniform((batch, n_cyl, 1), generator, device, *cfg.random_heights)
+    top_r = uniform((batch, rectangles.shape[1], 1), generator, device, *cfg.random_heights)
+    sphere_z = uniform((batch, n_sph, 1), generator, device, *cfg.random_sphere_altitude)
     cylinders = torch.cat((circles[:, :n_cyl], torch.full_like(top_c, ground), top_c), -1)
     boxes = torch.cat((rectangles, torch.full_like(top_r, ground), top_r), -1)
     spheres = torch.cat((circles[:, n_cyl:, :2], sphere_z, circles[:, n_cyl:, 2:]), -1)

@@ -1,15 +1,12 @@
 """Drawing one instant of the world: the frame ``FlockingEnv.render`` returns.
 
 Matplotlib's object API on an Agg canvas (no pyplot, no display, no global state but a cache of
-3-D layouts), so it runs headless and inside tests: fixed, moving and drawn obstacles (red; each world's own), the goal circle (green, radius
-``goal_radius``), UAVs as triangles along their heading (blue) and their camera fields of view
-(wedges of radius ``camera_range`` reaching ``half_fov`` either side of the heading). Whole
-episodes and the paper's figures are drawn by :mod:`flock_torchrl.report.figures`.
+3-D layouts), so it runs headless and inside tests: obstacles (red), the goal circle (green), UAVs
+as triangles along their heading (blue) and their camera wedges. Whole episodes and the paper's
+figures are drawn by :mod:`flock_torchrl.report.figures`.
 
-A 3-D world (docs/specification.md section 11) is drawn as a top view and a side view side by
-side: the top view as above (obstacles by their footprints, spheres as circles), the side view in
-the vertical plane through the area's centre and the goal (altitude against the distance along
-that line; obstacles as their silhouettes, the ground and the ceiling as grey lines).
+A 3-D world (docs/specification.md section 11) is drawn as a top view (obstacles by their
+footprints) beside a side view (:func:`draw_side`).
 """
 
 from __future__ import annotations
@@ -61,12 +58,10 @@ def env_state(env: Any, env_index: int = 0) -> WorldState:
     """The current state of env ``env_index`` of a FlockingEnv."""
     world = env.world[env_index]
     position, goal = _np(world["position"]), _np(world["goal"])
-    if env.cfg.dims == 3:
-        return WorldState(position[:, :2], _np(world["heading"]), goal[:2], _np(world["moving_position"]),
-                          _np(world["drawn_circles"]), _np(world["drawn_rectangles"]), position[:, 2],
-                          float(goal[2]), _np(world["drawn_spheres"]))
-    return WorldState(position, _np(world["heading"]), goal,
-                      _np(world["moving_position"]), _np(world["drawn_circles"]), _np(world["drawn_rectangles"]))
+    space = {} if env.cfg.dims != 3 else dict(altitude=position[:, 2], goal_altitude=float(goal[2]),
+                                              spheres=_np(world["drawn_spheres"]))
+    return WorldState(position[:, :2], _np(world["heading"]), goal[:2], _np(world["moving_position"]),
+                      _np(world["drawn_circles"]), _np(world["drawn_rectangles"]), **space)
 
 
 def rollout_states(rollout: Any, cfg: Any, env_index: int = 0) -> list[WorldState]:
@@ -83,18 +78,15 @@ def rollout_states(rollout: Any, cfg: Any, env_index: int = 0) -> list[WorldStat
     position, heading = track(("agents", "position")), track(("agents", "heading"))
     goal = td["goal"][0]
     keys = td.keys(include_nested=True)
-    if ("obstacles", "position") in keys:
-        moving = track(("obstacles", "position"))
-    else:
-        moving = torch.zeros(position.shape[0], 0, 2)
+    moving = track(("obstacles", "position")) if ("obstacles", "position") in keys else torch.zeros(
+        position.shape[0], 0, 2)
     # Drawn obstacles stay put for the episode: its first step's.
     drawn = {name: _np(td["obstacles", f"drawn_{name}"][0]) for name in ("circles", "rectangles", "spheres")
              if ("obstacles", f"drawn_{name}") in keys}
-    if cfg.dims == 3:  # the top view's positions, and the altitudes apart
-        return [WorldState(_np(position[t, :, :2]), _np(heading[t]), _np(goal[:2]), _np(moving[t]), **drawn,
-                           altitude=_np(position[t, :, 2]), goal_altitude=float(goal[2]))
-                for t in range(position.shape[0])]
-    return [WorldState(_np(position[t]), _np(heading[t]), _np(goal), _np(moving[t]), **drawn)
+    space = cfg.dims == 3  # the top view's positions, and the altitudes apart
+    return [WorldState(_np(position[t, :, :2]), _np(heading[t]), _np(goal[:2]), _np(moving[t]), **drawn,
+                       altitude=_np(position[t, :, 2]) if space else None,
+                       goal_altitude=float(goal[2]) if space else None)
             for t in range(position.shape[0])]
 
 
@@ -144,14 +136,12 @@ def draw_moving(ax: Any, cfg: Any, centres: np.ndarray, alpha: float = 0.6, labe
             ax.annotate(label, tuple(c), ha="center", va="center", fontsize=6, zorder=5)
 
 
-def draw_uavs(ax: Any, position: np.ndarray, heading: np.ndarray, length: float, color: str = UAV_COLOR,
-              alpha: float = 1.0) -> None:
+def draw_uavs(ax: Any, position: np.ndarray, heading: np.ndarray, length: float) -> None:
     """UAVs as isosceles triangles of ``length`` pointing along their heading."""
     for (x, y), h in zip(position.reshape(-1, 2), heading.reshape(-1)):
         tip = (x + length * math.cos(h), y + length * math.sin(h))
         back = [(x + 0.6 * length * math.cos(h + s * 2.5), y + 0.6 * length * math.sin(h + s * 2.5)) for s in (1, -1)]
-        ax.add_patch(Polygon([tip, *back], closed=True, facecolor=color, edgecolor="black", lw=0.4, alpha=alpha,
-                             zorder=4))
+        ax.add_patch(Polygon([tip, *back], closed=True, facecolor=UAV_COLOR, edgecolor="black", lw=0.4, zorder=4))
 
 
 def draw_fov(ax: Any, position: np.ndarray, heading: np.ndarray, radius: float, half_fov: float) -> None:
@@ -180,7 +170,7 @@ def style_axes(ax: Any, extent: tuple[float, float, float, float], title: str | 
 
 
 def draw_world(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float, float, float],
-               show_fov: bool = True, title: str | None = None) -> None:
+               show_fov: bool = True) -> None:
     """One instant of the world into ``ax``: obstacles (the world's drawn ones too), goal, fields
     of view, UAVs."""
     draw_static(ax, cfg, state.goal)
@@ -193,7 +183,7 @@ def draw_world(ax: Any, cfg: Any, state: WorldState, extent: tuple[float, float,
     if show_fov:
         draw_fov(ax, state.position, state.heading, cfg.camera_range, cfg.half_fov)
     draw_uavs(ax, state.position, state.heading, length=(extent[1] - extent[0]) / 60)
-    style_axes(ax, extent, title, axes=False)
+    style_axes(ax, extent, None, axes=False)
 
 
 def image_size(size: int | tuple[int, int]) -> tuple[int, int]:
@@ -348,9 +338,8 @@ def frame_figure(cfg: Any, state: WorldState, extent: tuple[float, float, float,
 
 
 def frame_image(cfg: Any, state: WorldState, extent: tuple[float, float, float, float], height: int, width: int,
-           show_fov: bool, title: str | None) -> np.ndarray:
-    fig = frame_figure(cfg, state, extent, height, width, show_fov, title)
-    return _to_rgb(fig.canvas, height, width)
+                show_fov: bool, title: str | None) -> np.ndarray:
+    return _to_rgb(frame_figure(cfg, state, extent, height, width, show_fov, title).canvas, height, width)
 
 
 # render_env(): the frame's options, and VMAS's display options TorchRL's scripts pass (ignored).
@@ -392,9 +381,7 @@ def render_frame(env: Any, env_index: int = 0, size: int | tuple[int, int] = 512
         size: pixels, ``S`` for ``S x S`` or ``(height, width)``.
         extent: ``(x0, x1, y0, y1)`` in metres (default: area, goal and UAVs, square).
         show_fov: draw the camera wedges.
-
-    Returns:
-        ``np.ndarray [H, W, 3]`` of ``uint8``.
+    Returns ``np.ndarray [H, W, 3]`` of ``uint8``.
     """
     if not 0 <= env_index < env.num_envs:
         raise IndexError(f"env_index {env_index} out of range for {env.num_envs} envs")

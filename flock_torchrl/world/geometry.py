@@ -191,9 +191,8 @@ def ray_rectangle_hit(lo_x: torch.Tensor, hi_x: torch.Tensor, lo_y: torch.Tensor
     return torch.where(inside, 0.0, t)
 
 
-def cast_rays(
-    origin: torch.Tensor, angles: torch.Tensor, obstacles: Obstacles, max_range: float
-) -> tuple[torch.Tensor, torch.Tensor]:
+def cast_rays(origin: torch.Tensor, angles: torch.Tensor, obstacles: Obstacles, max_range: float
+              ) -> tuple[torch.Tensor, torch.Tensor]:
     """Exact ray casting against circles and rectangles (docs/specification.md section 2, "Laser").
 
     Args:
@@ -222,28 +221,40 @@ def cast_rays_along(origin: torch.Tensor, directions: torch.Tensor, obstacles: O
     needs shapes that do not depend on the data, casts every pair with
     :func:`cast_rays_worlds_last`; both give the same distances and indices.
     """
+    shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
+              (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
+    return _cast_near(origin, directions, (), shapes, obstacles.count, max_range)
+
+
+def _cast_near(origin: torch.Tensor, directions: torch.Tensor, extra: tuple, shapes: tuple, count: int,
+               max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The eager cast of :func:`cast_rays_along` and :func:`cast_rays_3d`: ``cast(origin, direction,
+    *extra, obstacle)`` of each ``(tensors, cast, distance)`` of ``shapes`` on the (UAV, obstacle)
+    pairs within range only; ``(distance [B, N, K], obstacle [B, N, K])``."""
     b, n, k = directions.shape[:3]
-    count = obstacles.count
     if count == 0:
         return (origin.new_full((b, n, k), max_range),
                 torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
-    shapes = ((obstacles.circles, _ray_circle, distance_to_circles),
-              (obstacles.rectangles, _ray_rectangle, distance_to_rectangles))
     t = origin.new_full((b, n, count, k), math.inf)
     offset = 0
-    for tensors, cast, distance in shapes:  # two obstacle shapes, not a loop over worlds or UAVs
+    for tensors, cast, distance in shapes:  # the obstacle shapes, not a loop over worlds or UAVs
         m = tensors.shape[-2]
         if m:
             near = distance(origin, tensors) < max_range                     # [B, N, M]
             bi, ni, mi = near.nonzero(as_tuple=True)
             if bi.numel():
-                t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions[bi, ni], tensors[bi, mi, None])
+                t[bi, ni, offset + mi] = cast(origin[bi, ni, None], directions[bi, ni], *extra,
+                                              tensors[bi, mi, None])
         offset += m
+    return _within_range(t, max_range)
+
+
+def _within_range(t: torch.Tensor, max_range: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The nearest hit over the obstacles of ``t [B, N, M, K]`` and its index; ``max_range`` and -1 beyond range."""
     t_min, idx = t.min(-2)
     in_range = t_min < max_range
     return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(
-        in_range, idx, torch.full_like(idx, -1)
-    )
+        in_range, idx, torch.full_like(idx, -1))
 
 
 def _nearer(t: torch.Tensor, m: int, best: torch.Tensor | None, index: torch.Tensor | None
@@ -265,9 +276,7 @@ def cast_rays_worlds_last(px: torch.Tensor, py: torch.Tensor, dx: torch.Tensor, 
     vector). The formulas are :func:`ray_circle_hit` and :func:`ray_rectangle_hit`, as eager
     casting uses them; the obstacles are folded in one at a time (a loop over the scenario's
     obstacles, never over worlds or UAVs).
-
-    Returns:
-        ``(distance [K, N, B], obstacle [K, N, B])`` as :func:`cast_rays_along` gives them.
+    Returns ``(distance [K, N, B], obstacle [K, N, B])`` as :func:`cast_rays_along` gives them.
     """
     best = index = None
     m = 0
@@ -375,32 +384,14 @@ def cast_rays_3d(origin: torch.Tensor, horizontal: torch.Tensor, cos_e: torch.Te
     sin_e)``, ``horizontal [B, N, K, 2]`` unit, ``cos_e, sin_e [K]`` (section 11, laser rings),
     against cylinders, boxes and spheres (index order: cylinders, boxes, spheres). Eager code casts
     only the (UAV, obstacle) pairs within range, ``static_shapes`` every pair; the same values."""
-    b, n, k = horizontal.shape[:3]
-    if obstacles.count == 0:
-        return (origin.new_full((b, n, k), max_range),
-                torch.full((b, n, k), -1, dtype=torch.long, device=origin.device))
     shapes = ((obstacles.circles, _ray_cylinder, distance_to_cylinders),
               (obstacles.rectangles, _ray_box, distance_to_boxes),
               (obstacles.spheres, _ray_sphere, distance_to_spheres))
-    if static_shapes:
-        t = torch.cat([cast(origin[:, :, None, None], horizontal[:, :, None], cos_e, sin_e, tensors[:, None, :, None])
-                       for tensors, cast, _ in shapes if tensors.shape[-2]], -2)
-    else:
-        t = origin.new_full((b, n, obstacles.count, k), math.inf)
-        offset = 0
-        for tensors, cast, distance in shapes:  # three obstacle shapes, not a loop over worlds or UAVs
-            m = tensors.shape[-2]
-            if m:
-                near = distance(origin, tensors) < max_range
-                bi, ni, mi = near.nonzero(as_tuple=True)
-                if bi.numel():
-                    t[bi, ni, offset + mi] = cast(origin[bi, ni, None], horizontal[bi, ni], cos_e, sin_e,
-                                                  tensors[bi, mi, None])
-            offset += m
-    t_min, idx = t.min(-2)
-    in_range = t_min < max_range
-    return torch.where(in_range, t_min, torch.full_like(t_min, max_range)), torch.where(
-        in_range, idx, torch.full_like(idx, -1))
+    if static_shapes and obstacles.count:
+        return _within_range(torch.cat([cast(origin[:, :, None, None], horizontal[:, :, None], cos_e, sin_e,
+                                             tensors[:, None, :, None])
+                                        for tensors, cast, _ in shapes if tensors.shape[-2]], -2), max_range)
+    return _cast_near(origin, horizontal, (cos_e, sin_e), shapes, obstacles.count, max_range)
 
 
 def _vertical_excess(points: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
@@ -453,17 +444,11 @@ def distance_to_rectangles(points: torch.Tensor, rects: torch.Tensor) -> torch.T
 def distance_to_obstacles(points: torch.Tensor, obstacles: Obstacles, space: Space | None = None) -> torch.Tensor:
     """Signed distance to every obstacle surface, ``[B, N, C + R]`` (circles first; in ``space``
     ``[B, N, C + R + S]``, cylinders, boxes, spheres)."""
-    parts = []
+    shapes = ((obstacles.circles, distance_to_circles), (obstacles.rectangles, distance_to_rectangles))
     if space is not None:
-        for tensors, distance in ((obstacles.circles, distance_to_cylinders), (obstacles.rectangles, distance_to_boxes),
-                                  (obstacles.spheres, distance_to_spheres)):
-            if tensors.shape[-2] > 0:
-                parts.append(distance(points, tensors))
-    else:
-        if obstacles.circles.shape[-2] > 0:
-            parts.append(distance_to_circles(points, obstacles.circles))
-        if obstacles.rectangles.shape[-2] > 0:
-            parts.append(distance_to_rectangles(points, obstacles.rectangles))
+        shapes = ((obstacles.circles, distance_to_cylinders), (obstacles.rectangles, distance_to_boxes),
+                  (obstacles.spheres, distance_to_spheres))
+    parts = [distance(points, tensors) for tensors, distance in shapes if tensors.shape[-2] > 0]
     if not parts:
         return points.new_empty(points.shape[:-1] + (0,))
     return torch.cat(parts, -1)
@@ -483,9 +468,7 @@ def pairwise(positions: torch.Tensor, space: Space | None = None) -> tuple[torch
 
     Args:
         positions: ``[B, N, 2]`` (in ``space`` ``[B, N, 3]``).
-
-    Returns:
-        ``(offset [B, N, N, d], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
+    Returns ``(offset [B, N, N, d], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
     """
     offset = positions[:, None, :, :] - positions[:, :, None, :]
     return offset, length(offset, space)

@@ -6,16 +6,9 @@ what the process's own limits leave (``ulimit -v`` / ``RLIMIT_AS`` and ``ulimit 
 ``RLIMIT_DATA``, less what the process already maps) and what its cgroup leaves
 (``memory.max`` less ``memory.current``). :func:`check_memory` refuses an estimate above it
 with one :class:`~flock_torchrl.config.ConfigError` naming the key that costs most, the
-estimate and the limit. The estimates (bytes) are upper bounds of the big tensors, measured
-against peak resident memory in ``tests/test_memory.py``:
-
-* :func:`train_bytes` — a training run, its checkpoint writes included;
-* :func:`world_bytes` — one batched world (``[N]`` state and sensing, ``[N, N]`` pairwise terms);
-* :func:`reserve_bytes` — a training env's reserve of fresh worlds (``reset_pool``) and its refill;
-* :func:`spawn_check_bytes` — :func:`~flock_torchrl.world.spawn.check_spawn_feasible`'s lattices
-  ``[360, 16, P, 2]`` and their distances to the obstacles;
-* :func:`forest_bytes` — the random forest's fallback grid ``[G, 5]`` and its ``[360, G, P]``
-  clearances in the same check.
+estimate and the limit. The estimates (bytes: :func:`train_bytes`, :func:`world_bytes`,
+:func:`reserve_bytes`, :func:`spawn_check_bytes`, :func:`forest_bytes`) are upper bounds of the
+big tensors, measured against peak resident memory in ``tests/test_memory.py``.
 """
 
 from __future__ import annotations
@@ -201,10 +194,9 @@ def check_episodes_memory(scenario: Any, episodes: int, key: str = "episodes") -
 
 def check_scenario_memory(scenario: Any, key: str = "scenario.n_uavs") -> None:
     """What checking ``scenario``'s spawn and forest needs, before it is allocated."""
-    forest_key = "scenario.random_region"
-    check_memory({key: spawn_check_bytes(scenario), forest_key: forest_bytes(scenario)},
+    check_memory({key: spawn_check_bytes(scenario), "scenario.random_region": forest_bytes(scenario)},
                  "checking that the swarm and the forest can always be placed")
 
 
-__all__ = ["check_episodes_memory", "train_bytes", "Usable", "check_memory", "check_scenario_memory", "forest_bytes", "forest_cells",
-           "lattice_points", "reserve_bytes", "spawn_check_bytes", "usable_memory", "world_bytes"]
+__all__ = ["check_episodes_memory", "train_bytes", "Usable", "check_memory", "check_scenario_memory", "forest_bytes",
+           "forest_cells", "lattice_points", "reserve_bytes", "spawn_check_bytes", "usable_memory", "world_bytes"]

@@ -99,23 +99,15 @@ def step_statistics(position: torch.Tensor, velocity: torch.Tensor, heading: tor
 
 def new_accumulator(batch: int, device=None, dtype=torch.float32) -> TensorDict:
     """Empty accumulators for ``batch`` episodes."""
-    def zeros():
-        return torch.zeros(batch, device=device, dtype=dtype)
+    def full(value, kind=dtype):
+        return torch.full((batch,), value, device=device, dtype=kind)
 
     return TensorDict(
-        {
-            "steps": torch.zeros(batch, device=device, dtype=torch.long),
-            "sum_d_c": zeros(), "sum_v_error": zeros(), "sum_phi_error": zeros(), "sum_speed": zeros(),
-            "return": zeros(),
-            "d_min_obs": torch.full((batch,), OBSTACLE_DISTANCE_CAP, device=device, dtype=dtype),
-            "d_min_uav": torch.full((batch,), math.inf, device=device, dtype=dtype),
-            "reached": torch.zeros(batch, device=device, dtype=torch.bool),
-            "crashed": torch.zeros(batch, device=device, dtype=torch.bool),
-            "t_goal": torch.full((batch,), math.nan, device=device, dtype=dtype),
-        },
-        batch_size=[batch],
-        device=device,
-    )
+        {"steps": full(0, torch.long), **{k: full(0.0) for k in ("sum_d_c", "sum_v_error", "sum_phi_error",
+                                                                  "sum_speed", "return")},
+         "d_min_obs": full(OBSTACLE_DISTANCE_CAP), "d_min_uav": full(math.inf), "reached": full(False, torch.bool),
+         "crashed": full(False, torch.bool), "t_goal": full(math.nan)},
+        batch_size=[batch], device=device)
 
 
 def update_episode(acc: TensorDict, stats: dict[str, torch.Tensor], reached: torch.Tensor,
@@ -145,21 +137,10 @@ def summary_values(acc: Mapping[str, torch.Tensor], collision_distance: float) -
     """:func:`episode_summary` as a plain dict of ``[B]`` tensors (what the compiled step returns)."""
     steps = acc["steps"].clamp_min(1).to(acc["sum_d_c"].dtype)
     success = acc["reached"] & ~acc["crashed"]
-    return {
-        "success": success,
-        "safe_success": success & (acc["d_min_uav"] >= collision_distance),
-        "reached": acc["reached"].clone(),
-        "crashed": acc["crashed"].clone(),
-        "d_min_obs": acc["d_min_obs"].clone(),
-        "d_min_uav": acc["d_min_uav"].clone(),
-        "d_c": acc["sum_d_c"] / steps,
-        "v_error": acc["sum_v_error"] / steps,
-        "phi_error": acc["sum_phi_error"] / steps,
-        "speed": acc["sum_speed"] / steps,
-        "t_goal": acc["t_goal"].clone(),
-        "steps": acc["steps"].clone(),
-        "return": acc["return"].clone(),
-    }
+    return {"success": success, "safe_success": success & (acc["d_min_uav"] >= collision_distance),
+            **{k: acc[k].clone() for k in ("reached", "crashed", "d_min_obs", "d_min_uav")},
+            **{k: acc[f"sum_{k}"] / steps for k in ("d_c", "v_error", "phi_error", "speed")},
+            **{k: acc[k].clone() for k in ("t_goal", "steps", "return")}}
 
 
 def episode_summary(acc: Mapping[str, torch.Tensor], collision_distance: float) -> TensorDict:

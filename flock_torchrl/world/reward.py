@@ -28,9 +28,7 @@ def collision_reward(d: torch.Tensor, shape: str = "paper") -> torch.Tensor:
         raise ValueError(f"collision_shape must be one of {', '.join(COLLISION_SHAPES)}; got {shape!r}")
     # Levels built in d's dtype: scalar branches of torch.where would be float32 (-0.2 -> -0.200000003).
     zero = torch.zeros_like(d)
-    return torch.where(
-        d <= 0.5, zero - 1.0, torch.where(d <= 2.0, zero - 0.5, torch.where(d <= 3.0, zero - 0.2, zero))
-    )
+    return torch.where(d <= 0.5, zero - 1.0, torch.where(d <= 2.0, zero - 0.5, torch.where(d <= 3.0, zero - 0.2, zero)))
 
 
 def cohesion_range(mode: str, n_uavs: int) -> float:
@@ -62,9 +60,5 @@ def smoothness_reward(action: torch.Tensor, prev_action: torch.Tensor) -> torch.
 def total_reward(*, d_goal, d_goal_prev, alpha_goal, goal_radius, d_collision, heading_deviation,
                  d_centre, action, prev_action, reach: float = 3.0, shape: str = "paper") -> torch.Tensor:
     """``r = r_g + r_c + r_f + r_v`` (Eq. 21), all ``[B, N]``."""
-    return (
-        goal_reward(d_goal, d_goal_prev, alpha_goal, goal_radius)
-        + collision_reward(d_collision, shape)
-        + flocking_reward(heading_deviation, d_centre, reach)
-        + smoothness_reward(action, prev_action)
-    )
+    return (goal_reward(d_goal, d_goal_prev, alpha_goal, goal_radius) + collision_reward(d_collision, shape)
+            + flocking_reward(heading_deviation, d_centre, reach) + smoothness_reward(action, prev_action))

@@ -4,14 +4,10 @@
 Starts follow docs/specification.md sections 1 and 9: each UAV uniform in a disc around the
 swarm centre (radius :attr:`ScenarioConfig.swarm_spawn_radius`, which grows with the swarm
 as the reading says), at least ``spawn_separation`` from the others and ``spawn_clearance``
-from obstacle surfaces. Rejection sampling redraws only the offending UAVs, for at most
-``spawn_max_tries`` rounds; a world whose swarm is still not placed then draws its starts from
-one of 16 rotated, shifted hexagonal lattices of spacing ``spawn_separation`` (every pair is
-then far enough apart by construction). :func:`check_spawn_feasible` counts, at config time,
-the free points of those lattices for every swarm centre the scenario can draw, so an
-accepted config never fails to spawn mid-run. The drawn obstacles come last (after every
-draw a scenario without them makes) and keep their clearance from the spawn disc, the goal and
-the moving circles; :func:`.forest.check_forest` guarantees them at config time too.
+from obstacle surfaces. Rejection sampling redraws only the offending UAVs; a world whose swarm
+is still not placed takes its starts from a hexagonal lattice (:func:`lattice_starts`), which
+:func:`check_spawn_feasible` proves at config time to have room, so an accepted config never
+fails to spawn mid-run. The drawn obstacles come last (:mod:`.forest`).
 """
 
 from __future__ import annotations
@@ -22,7 +18,7 @@ from dataclasses import dataclass
 import torch
 
 from ..config.scenario import ConfigError, ScenarioConfig
-from .forest import SpawnError, check_forest, lift_drawn, sample_forest
+from .forest import SpawnError, uniform, check_forest, lift_drawn, sample_forest
 from .geometry import Obstacles, distance_to_obstacles, pairwise
 
 # Angular resolution of the config-time check over swarm centres (Eq. 30's chi); the check
@@ -72,9 +68,8 @@ def static_obstacles(cfg: ScenarioConfig, device=None, dtype=torch.float32) -> O
     cylinders ``[1, C, 5]``, boxes ``[1, R, 6]`` and spheres ``[1, S, 4]``."""
     circles = torch.tensor(cfg.circles, dtype=dtype, device=device).reshape(1, -1, cfg.circle_size)
     rectangles = torch.tensor(cfg.rectangles, dtype=dtype, device=device).reshape(1, -1, cfg.rectangle_size)
-    if cfg.dims != 3:
-        return Obstacles(circles, rectangles)
-    return Obstacles(circles, rectangles, torch.tensor(cfg.spheres, dtype=dtype, device=device).reshape(1, -1, 4))
+    spheres = torch.tensor(cfg.spheres, dtype=dtype, device=device).reshape(1, -1, 4) if cfg.dims == 3 else None
+    return Obstacles(circles, rectangles, spheres)
 
 
 def chi_grid(cfg: ScenarioConfig, steps: int, dtype=torch.float64) -> torch.Tensor:
@@ -86,24 +81,20 @@ def chi_grid(cfg: ScenarioConfig, steps: int, dtype=torch.float64) -> torch.Tens
     return low + torch.arange(steps, dtype=dtype) * ((high - low) / (steps - 1))
 
 
-def _uniform(shape, generator, device, low=0.0, high=1.0):
-    return low + (high - low) * torch.rand(shape, generator=generator, device=device)
-
-
 def _drawn(shape, generator, device, low: float, high: float) -> torch.Tensor:
     """Uniform in ``[low, high)``; a range of zero width is its value and draws nothing (section 11:
     a fixed altitude leaves the generator as the plane leaves it)."""
     if low == high:
         return torch.full(shape, float(low), device=device)
-    return _uniform(shape, generator, device, low, high)
+    return uniform(shape, generator, device, low, high)
 
 
 def _angle(shape, generator, device):
-    return _uniform(shape, generator, device, -math.pi, math.pi)
+    return uniform(shape, generator, device, -math.pi, math.pi)
 
 
 def _in_disc(shape, radius, generator, device):
-    r = radius * torch.sqrt(_uniform(shape, generator, device))
+    r = radius * torch.sqrt(uniform(shape, generator, device))
     theta = _angle(shape, generator, device)
     return torch.stack((r * torch.cos(theta), r * torch.sin(theta)), -1)
 
@@ -163,12 +154,6 @@ def _free(points: torch.Tensor, static: Obstacles, clearance: float) -> torch.Te
     return free
 
 
-def _lattice_free(centre: torch.Tensor, offsets: torch.Tensor, static: Obstacles, clearance: float) -> torch.Tensor:
-    """``[M, L, P]``: lattice point ``p`` of lattice ``l`` around centre ``m`` lies in the disc
-    and at least ``clearance`` from every obstacle surface."""
-    return _free(centre[:, None, None] + offsets[None], static, clearance)
-
-
 def lattice_starts(centre: torch.Tensor, cfg: ScenarioConfig, static: Obstacles, generator: torch.Generator
                    ) -> torch.Tensor:
     """Starts on a hexagonal lattice, for worlds rejection sampling could not place.
@@ -184,7 +169,7 @@ def lattice_starts(centre: torch.Tensor, cfg: ScenarioConfig, static: Obstacles,
     """
     m, n, device = centre.shape[0], cfg.n_uavs, centre.device
     offsets = lattice_offsets(cfg, device)                                             # [L, P, 2]
-    first = (_uniform((m,), generator, device) * LATTICES).long().clamp_max(LATTICES - 1)
+    first = (uniform((m,), generator, device) * LATTICES).long().clamp_max(LATTICES - 1)
     lattice = first.clone()
     free = torch.zeros(m, offsets.shape[1], dtype=torch.bool, device=device)
     todo = torch.arange(m, device=device)
@@ -197,7 +182,7 @@ def lattice_starts(centre: torch.Tensor, cfg: ScenarioConfig, static: Obstacles,
             break
     else:
         raise SpawnError(f"no spawn lattice has {n} free points (a config check_spawn_feasible should refuse)")
-    score = torch.where(free, _uniform(free.shape, generator, device), torch.full_like(free, 2.0, dtype=torch.float32))
+    score = torch.where(free, uniform(free.shape, generator, device), torch.full_like(free, 2.0, dtype=torch.float32))
     chosen = score.argsort(-1)[:, :n]                                                  # [M, N]
     candidates = centre[:, None] + offsets[lattice]                                    # [M, P, 2]
     return torch.gather(candidates, 1, chosen[..., None].expand(-1, -1, 2))
@@ -205,16 +190,12 @@ def lattice_starts(centre: torch.Tensor, cfg: ScenarioConfig, static: Obstacles,
 
 def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator: torch.Generator,
                   device: torch.device) -> Layout:
-    """Draw ``batch`` episode starts (sections 1, 6 and 9).
-
-    Args:
-        static: the scenario's static obstacles, batch dimension of size 1.
-    """
+    """Draw ``batch`` episode starts (sections 1, 6 and 9) among ``static``, the fixed obstacles (batch 1)."""
     n = cfg.n_uavs
     cx, cy = cfg.area_center
     three_d = cfg.dims == 3
     static = static.footprints() if three_d else static  # in 3-D the starts are placed on footprints
-    chi = _uniform((batch,), generator, device, *cfg.chi_range)
+    chi = uniform((batch,), generator, device, *cfg.chi_range)
     unit = torch.stack((torch.cos(chi), torch.sin(chi)), -1)
     area_center = torch.tensor([cx, cy], device=device)
     swarm_centre = area_center + cfg.d_env * unit
@@ -258,12 +239,12 @@ def sample_layout(cfg: ScenarioConfig, batch: int, static: Obstacles, generator:
     moving_velocity = torch.zeros(batch, k, 2, device=device)
     if k:
         low, high = cfg.moving_box
-        moving_position = _uniform((batch, k, 2), generator, device, low, high)
+        moving_position = uniform((batch, k, 2), generator, device, low, high)
         for _ in range(cfg.spawn_max_tries):
             bad = _moving_conflicts(moving_position, cfg, static_b, position, goal)
             if not bad.any():
                 break
-            fresh = _uniform((batch, k, 2), generator, device, low, high)
+            fresh = uniform((batch, k, 2), generator, device, low, high)
             moving_position = torch.where(bad[..., None], fresh, moving_position)
         else:
             raise SpawnError(
@@ -299,6 +280,9 @@ def _moving_conflicts(centres: torch.Tensor, cfg: ScenarioConfig, static: Obstac
 
 
 # ---------------------------------------------------------------------------- config-time check
+_FEASIBLE: set[tuple] = set()  # the scenarios checked already (:func:`_feasibility_key`)
+
+
 def _feasibility_key(cfg: ScenarioConfig) -> tuple:
     return (cfg.n_uavs, cfg.swarm_spawn_radius, cfg.spawn_separation, cfg.spawn_clearance, cfg.d_env,
             tuple(cfg.area_center), tuple(map(tuple, cfg.circles)), tuple(map(tuple, cfg.rectangles)),
@@ -318,18 +302,11 @@ def check_spawn_feasible(cfg: ScenarioConfig) -> None:
     start box free of the swarm's, the goal's and the static obstacles' exclusion zones. Drawn
     obstacles must always fit the fallback grid of :func:`.forest.check_forest`.
     """
-    key = _feasibility_key(cfg)
-    if key not in _FEASIBLE:
-        _check(cfg)
-        _FEASIBLE.add(key)
-
-
-_FEASIBLE: set[tuple] = set()
-
-
-def _check(cfg: ScenarioConfig) -> None:
     from .memory import check_scenario_memory
 
+    key = _feasibility_key(cfg)
+    if key in _FEASIBLE:
+        return
     check_scenario_memory(cfg)  # before the lattices and the forest grid are allocated
     n, s = cfg.n_uavs, cfg.spawn_separation
     static = static_obstacles(cfg, dtype=torch.float64)
@@ -340,7 +317,7 @@ def _check(cfg: ScenarioConfig) -> None:
     chord = 2 * cfg.d_env * math.sin(math.pi / _CHECK_ANGLES)  # a centre off the grid is this close to one
     if n > 1 and s > 0:
         offsets = lattice_offsets(cfg, dtype=torch.float64)
-        free = _lattice_free(centre, offsets, static, cfg.spawn_clearance + chord / 2)  # [A, L, P]
+        free = _free(centre[:, None, None] + offsets[None], static, cfg.spawn_clearance + chord / 2)  # [A, L, P]
         room = free.sum(-1).amax(-1)                                                   # [A]
         worst = int(room.argmin())
         if int(room[worst]) < n:
@@ -352,13 +329,13 @@ def _check(cfg: ScenarioConfig) -> None:
                 "raise spawn_radius or d_env, or lower n_uavs / spawn_separation")
     elif static.count:
         # One UAV (or no separation): some point of the disc must be clear of the obstacles.
-        free = _lattice_free(centre, torch.zeros(1, 1, 2, dtype=torch.float64), static,
-                             cfg.spawn_clearance + chord / 2)
-        if not bool(free.any(-1).any(-1).all()):
+        free = _free(centre[:, None], static, cfg.spawn_clearance + chord / 2)                # [A, 1]
+        if not bool(free.any(-1).all()):
             raise ConfigError("scenario.spawn_clearance", "the swarm centre can fall inside an obstacle's clearance")
     if cfg.n_moving:
         _check_moving(cfg, static, centre, chi, chord)
     check_forest(cfg, static, centre, chord / 2)
+    _FEASIBLE.add(key)
 
 
 def _check_moving(cfg: ScenarioConfig, static: Obstacles, centre: torch.Tensor, chi: torch.Tensor,

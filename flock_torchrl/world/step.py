@@ -204,10 +204,8 @@ def advance(state: Tensors, sensed: Tensors, episode: Tensors, action: torch.Ten
     compiled step's twin.
     """
     space = space_of(cfg, state["climb"])  # None in the plane (section 11)
-    if cfg.action_mode == "policy":
-        command = action_to_command(action, state["heading"], space)
-    else:  # the action is the velocity command (rule-based controllers)
-        command = action
+    # In the "velocity" action mode the action is the velocity command (rule-based controllers).
+    command = action_to_command(action, state["heading"], space) if cfg.action_mode == "policy" else action
     if cfg.instinct:
         use = sensed["instinct_triggered"]
         command = torch.where(use[..., None], sensed["instinct_command"], command)

@@ -2,10 +2,8 @@
 
 G. Vasarhelyi, Cs. Viragh, G. Somorjai, T. Nepusz, A. E. Eiben, T. Vicsek, "Optimized
 flocking of autonomous drones in confined environments", Science Robotics 3(20), 2018.
-Its terms (Materials and Methods; each docstring states the formula, as collected in
-docs/baselines.md, "Policy-OP — Vasarhelyi et al. 2018"): self-propulsion, linear short-range repulsion, the optimal braking
-curve D, velocity alignment as friction, shill agents at obstacles, and the desired velocity
-as their sum with a speed cap.
+Each term's docstring states its formula (Materials and Methods, as collected in docs/baselines.md,
+"Policy-OP — Vasarhelyi et al. 2018"); the desired velocity is their sum with a speed cap.
 
 The controller outputs a desired velocity, which is exactly this world's command (Eq. 1 of
 Bai et al. has the same first-order robot model as the paper's simulator). The original has
@@ -53,9 +51,7 @@ def repulsion(offset: torch.Tensor, distance: torch.Tensor, visible: torch.Tenso
 
     Args:
         offset: ``q_j - q_i`` ``[B, N, N, 2]``; distance: ``r_ij`` ``[B, N, N]``; visible: ``[B, N, N]``.
-
-    Returns:
-        ``[B, N, 2]``.
+    Returns ``[B, N, 2]``.
     """
     active = visible & (distance < r0_rep) & (distance > 0)
     gain = torch.where(active, p_rep * (r0_rep - distance) / distance.clamp_min(1e-9), torch.zeros_like(distance))
@@ -72,9 +68,7 @@ def friction(relative_velocity: torch.Tensor, distance: torch.Tensor, visible: t
 
     Args:
         relative_velocity: ``v_j - v_i`` ``[B, N, N, 2]``; distance: ``[B, N, N]``; visible: ``[B, N, N]``.
-
-    Returns:
-        ``[B, N, 2]``.
+    Returns ``[B, N, 2]``.
     """
     speed = torch.linalg.vector_norm(relative_velocity, dim=-1)
     allowed = braking_curve(distance - r0_frict, a_frict, p_frict).clamp_min(v_frict)
@@ -93,9 +87,7 @@ def shill(hit_distance: torch.Tensor, hit_normal: torch.Tensor, seen: torch.Tens
     Args:
         hit_distance: ``r_is`` ``[B, N, M]``; hit_normal: ``[B, N, M, 2]``; seen: ``[B, N, M]``;
         velocity: ``v_i`` ``[B, N, 2]``.
-
-    Returns:
-        ``[B, N, 2]``.
+    Returns ``[B, N, 2]``.
     """
     difference = v_shill * hit_normal - velocity[:, :, None, :]                # v_s - v_i
     speed = torch.linalg.vector_norm(difference, dim=-1)
@@ -130,14 +122,7 @@ class VasarhelyiParams:
 
 
 class VasarhelyiPolicy(RuleBasedPolicy):
-    """Policy-OP as a TensorDict module: reads the env's raw sensing, writes the velocity command.
-
-    Needs the env built with ``action_mode="velocity"``. Works on any device (that of the inputs).
-
-    Args:
-        params: :class:`VasarhelyiParams`.
-        env_cfg: the scenario (:class:`~flock_torchrl.config.ScenarioConfig`).
-        seed: seed of the S4 camera-noise generator.
+    """Policy-OP as a :class:`RuleBasedPolicy` (its arguments; ``params``: :class:`VasarhelyiParams`).
 
     Example:
         >>> from flock_torchrl import FlockingEnv, make_policy
