@@ -22,7 +22,9 @@ def action_to_command(action: torch.Tensor, heading: torch.Tensor, space: Space 
     Args:
         action: ``[..., 2]`` (in space ``[..., 3]``) in ``[-1, 1]``.
         heading: ``[...]`` current heading ``phi``.
-    Returns ``[..., 2]`` (``[..., 3]``) velocity command (not yet clipped).
+
+    Returns:
+        ``[..., 2]`` (``[..., 3]``) velocity command (not yet clipped).
     """
     direction = heading + action[..., 0] * (math.pi / 2)
     speed = action[..., 1] + 2.0
@@ -47,7 +49,9 @@ def first_order_step(position: torch.Tensor, velocity: torch.Tensor, command: to
 
     Args:
         position, velocity, command: ``[..., 2]``; the command is used as given (clip first).
-    Returns ``(position, velocity)`` after the step.
+
+    Returns:
+        ``(position, velocity)`` after the step.
     """
     velocity = velocity + (dt / tau_v) * (command - velocity)
     return position + dt * velocity, velocity

@@ -148,7 +148,9 @@ def place_by_rejection(cfg: ScenarioConfig, shapes: torch.Tensor, fixed: torch.T
     it is closer than ``random_clearance`` to ``fixed [B, P, 5]`` or an obstacle placed before
     it, for at most ``spawn_max_tries`` rounds. A world whose obstacle is still in conflict is
     *stuck*; its later obstacles are not tried.
-    Returns ``(boxes [B, M, 5], stuck [B])``; a stuck world's boxes are meaningless.
+
+    Returns:
+        ``(boxes [B, M, 5], stuck [B])``; a stuck world's boxes are meaningless.
     """
     batch, m = shapes.shape[:2]
     device, clearance = shapes.device, cfg.random_clearance

@@ -381,7 +381,9 @@ def render_frame(env: Any, env_index: int = 0, size: int | tuple[int, int] = 512
         size: pixels, ``S`` for ``S x S`` or ``(height, width)``.
         extent: ``(x0, x1, y0, y1)`` in metres (default: area, goal and UAVs, square).
         show_fov: draw the camera wedges.
-    Returns ``np.ndarray [H, W, 3]`` of ``uint8``.
+
+    Returns:
+        ``np.ndarray [H, W, 3]`` of ``uint8``.
     """
     if not 0 <= env_index < env.num_envs:
         raise IndexError(f"env_index {env_index} out of range for {env.num_envs} envs")

@@ -276,7 +276,9 @@ def cast_rays_worlds_last(px: torch.Tensor, py: torch.Tensor, dx: torch.Tensor, 
     vector). The formulas are :func:`ray_circle_hit` and :func:`ray_rectangle_hit`, as eager
     casting uses them; the obstacles are folded in one at a time (a loop over the scenario's
     obstacles, never over worlds or UAVs).
-    Returns ``(distance [K, N, B], obstacle [K, N, B])`` as :func:`cast_rays_along` gives them.
+
+    Returns:
+        ``(distance [K, N, B], obstacle [K, N, B])`` as :func:`cast_rays_along` gives them.
     """
     best = index = None
     m = 0
@@ -468,7 +470,9 @@ def pairwise(positions: torch.Tensor, space: Space | None = None) -> tuple[torch
 
     Args:
         positions: ``[B, N, 2]`` (in ``space`` ``[B, N, 3]``).
-    Returns ``(offset [B, N, N, d], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
+
+    Returns:
+        ``(offset [B, N, N, d], distance [B, N, N])`` with ``offset[b, i, j] = p_j - p_i``.
     """
     offset = positions[:, None, :, :] - positions[:, :, None, :]
     return offset, length(offset, space)

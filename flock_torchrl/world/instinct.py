@@ -33,7 +33,9 @@ def repulsion(offset: torch.Tensor, active: torch.Tensor, to_goal: torch.Tensor,
         tangential: include ``v_t`` (Eq. 28); Policy5-G drops it.
         taper: in space, the angle (rad) within which ``v_t`` fades to 0 about ``v_r``'s line (section 11).
         space: in space (section 11) the offsets and ``to_goal`` have three components.
-    Returns ``[B, N, 2]`` ``v_rep_i = sum_j (v_r_ij + v_t_ij)`` (Eq. 29).
+
+    Returns:
+        ``[B, N, 2]`` ``v_rep_i = sum_j (v_r_ij + v_t_ij)`` (Eq. 29).
     """
     dx, dy = offset[..., 0].contiguous(), offset[..., 1].contiguous()
     goal = to_goal[..., None].unbind(-2)  # per component, [B, N, 1]

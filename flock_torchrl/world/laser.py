@@ -149,7 +149,9 @@ def shortest_beams(beams: torch.Tensor, n: int, worlds_last: bool = False) -> tu
     Args:
         worlds_last: select along the beams held outermost (``beams`` a ``[B, N, K]`` view of a
             ``[K, N, B]`` tensor, as :func:`laser_scan` gives them with ``static_shapes``).
-    Returns ``(distance [B, N, n], beam index [B, N, n])``.
+
+    Returns:
+        ``(distance [B, N, n], beam index [B, N, n])``.
     """
     if worlds_last:
         d, at = smallest(beams.permute(2, 1, 0), n, 0)

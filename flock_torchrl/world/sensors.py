@@ -268,7 +268,9 @@ def near_neighbours(position: torch.Tensor, heading: torch.Tensor, camera_range:
 
     ``worlds_last`` (with ``static_shapes``): every pair, laid out ``[N_j, N, B]`` (``pair_dim =
     0``), the compiled step's layout; the same formulas.
-    Returns ``(neighbours [B, N, M], where they came from, closest pair [B])`` (``inf`` for one UAV).
+
+    Returns:
+        ``(neighbours [B, N, M], where they came from, closest pair [B])`` (``inf`` for one UAV).
     """
     b, n = heading.shape
     dev = position.device

@@ -111,7 +111,9 @@ def beta_agent_wall(position: torch.Tensor, velocity: torch.Tensor, normal: torc
 
     Args:
         position, velocity: ``[..., 2]``; normal: unit normal ``a`` ``[..., 2]``; point: ``y`` ``[..., 2]``.
-    Returns ``(qh, ph)``, each ``[..., 2]``.
+
+    Returns:
+        ``(qh, ph)``, each ``[..., 2]``.
     """
     along = lambda v: (v * normal).sum(-1, keepdim=True) * normal  # noqa: E731  (I - P) v
     return position - along(position) + along(point), velocity - along(velocity)
@@ -126,7 +128,9 @@ def beta_agent_circle(position: torch.Tensor, velocity: torch.Tensor, centre: to
 
     Args:
         position, velocity, centre: ``[..., 2]``; radius: ``[...]`` or a float.
-    Returns ``(qh, ph)``, each ``[..., 2]``.
+
+    Returns:
+        ``(qh, ph)``, each ``[..., 2]``.
     """
     offset = position - centre
     dist = torch.linalg.vector_norm(offset, dim=-1, keepdim=True)
@@ -149,7 +153,9 @@ def beta_agents_from_scan(hit_offset: torch.Tensor, hit_normal: torch.Tensor,
 
     Args:
         hit_offset: ``qh - q`` ``[B, N, M, 2]``; hit_normal: ``[B, N, M, 2]``; velocity: ``[B, N, 2]``.
-    Returns ``(qh - q [B, N, M, 2], ph [B, N, M, 2])``.
+
+    Returns:
+        ``(qh - q [B, N, M, 2], ph [B, N, M, 2])``.
     """
     p = velocity[:, :, None, :]
     return hit_offset, p - (p * hit_normal).sum(-1, keepdim=True) * hit_normal
@@ -168,7 +174,9 @@ def alpha_terms(offset: torch.Tensor, relative_velocity: torch.Tensor, visible: 
     Args:
         offset: ``q_j - q_i`` ``[B, N, N, 2]``; relative_velocity: ``p_j - p_i`` ``[B, N, N, 2]``;
         visible: ``[B, N, N]``; eps, r, d, h, a, b: Olfati-Saber's constants (``r``, ``d`` in metres).
-    Returns ``(gradient [B, N, 2], consensus [B, N, 2])``.
+
+    Returns:
+        ``(gradient [B, N, 2], consensus [B, N, 2])``.
     """
     z = sigma_norm(offset, eps)
     r_a, d_a = sigma_norm_of_length(r, eps), sigma_norm_of_length(d, eps)
@@ -191,7 +199,9 @@ def beta_terms(beta_offset: torch.Tensor, beta_velocity: torch.Tensor, velocity:
     Args:
         beta_offset: ``qh_k - q_i`` ``[B, N, M, 2]``; beta_velocity: ``ph_k`` ``[B, N, M, 2]``;
         velocity: ``p_i`` ``[B, N, 2]``; seen: ``[B, N, M]``.
-    Returns ``(gradient [B, N, 2], consensus [B, N, 2])``.
+
+    Returns:
+        ``(gradient [B, N, 2], consensus [B, N, 2])``.
     """
     dist = torch.linalg.vector_norm(beta_offset, dim=-1)
     mask = (seen & (dist < r_beta)).to(beta_offset.dtype)

@@ -51,7 +51,9 @@ def repulsion(offset: torch.Tensor, distance: torch.Tensor, visible: torch.Tenso
 
     Args:
         offset: ``q_j - q_i`` ``[B, N, N, 2]``; distance: ``r_ij`` ``[B, N, N]``; visible: ``[B, N, N]``.
-    Returns ``[B, N, 2]``.
+
+    Returns:
+        ``[B, N, 2]``.
     """
     active = visible & (distance < r0_rep) & (distance > 0)
     gain = torch.where(active, p_rep * (r0_rep - distance) / distance.clamp_min(1e-9), torch.zeros_like(distance))
@@ -68,7 +70,9 @@ def friction(relative_velocity: torch.Tensor, distance: torch.Tensor, visible: t
 
     Args:
         relative_velocity: ``v_j - v_i`` ``[B, N, N, 2]``; distance: ``[B, N, N]``; visible: ``[B, N, N]``.
-    Returns ``[B, N, 2]``.
+
+    Returns:
+        ``[B, N, 2]``.
     """
     speed = torch.linalg.vector_norm(relative_velocity, dim=-1)
     allowed = braking_curve(distance - r0_frict, a_frict, p_frict).clamp_min(v_frict)
@@ -87,7 +91,9 @@ def shill(hit_distance: torch.Tensor, hit_normal: torch.Tensor, seen: torch.Tens
     Args:
         hit_distance: ``r_is`` ``[B, N, M]``; hit_normal: ``[B, N, M, 2]``; seen: ``[B, N, M]``;
         velocity: ``v_i`` ``[B, N, 2]``.
-    Returns ``[B, N, 2]``.
+
+    Returns:
+        ``[B, N, 2]``.
     """
     difference = v_shill * hit_normal - velocity[:, :, None, :]                # v_s - v_i
     speed = torch.linalg.vector_norm(difference, dim=-1)
