@@ -203,7 +203,9 @@ def read_seed_scores(path: str | Path, metric: str) -> dict[str, list[float]]:
     """``{policy: [score per seed]}`` from a ``*_seeds.csv`` table (one row per checkpoint)."""
     scores: dict[str, list[float]] = {}
     for row in read_table_csv(path):
-        value = math.nan if row.get("extra") else float(row[metric])
+        if row.get("extra"):
+            continue
+        value = float(row[metric])
         if not math.isnan(value):
             scores.setdefault(row["policy"], []).append(value)
     return scores
