@@ -78,8 +78,10 @@ def rollout_states(rollout: Any, cfg: Any, env_index: int = 0) -> list[WorldStat
     position, heading = track(("agents", "position")), track(("agents", "heading"))
     goal = td["goal"][0]
     keys = td.keys(include_nested=True)
-    moving = track(("obstacles", "position")) if ("obstacles", "position") in keys else torch.zeros(
-        position.shape[0], 0, 2)
+    if ("obstacles", "position") in keys:
+        moving = track(("obstacles", "position"))
+    else:
+        moving = torch.zeros(position.shape[0], 0, 2)
     # Drawn obstacles stay put for the episode: its first step's.
     drawn = {name: _np(td["obstacles", f"drawn_{name}"][0]) for name in ("circles", "rectangles", "spheres")
              if ("obstacles", f"drawn_{name}") in keys}
