@@ -275,30 +275,20 @@ def test_the_3d_figures_show_the_seed_of_median_success():
     assert float(chosen["success_rate"]) == wall[(len(wall) - 1) // 2]
 
 
-# ---------------------------------------------------------------------------- the entry points answer as the apps do
-def test_the_publishing_entry_points_answer_in_one_line(tmp_path, capsys):
-    from flock_torchrl.report import seeds, splice, threed
+# ---------------------------------------------------------------------------- the app answers in one line
+def test_the_publish_app_answers_a_bad_input_in_one_line(tmp_path, capsys):
     from flock_torchrl.report.publish import main
 
     shipped = ROOT / "checkpoints" / "paper_fit" / "threed" / "policy3_g" / "seed0.pt"
     truncated = tmp_path / "seed0.pt"
     truncated.write_bytes(shipped.read_bytes()[: shipped.stat().st_size // 2])
-    results, figures = tmp_path / "results", tmp_path / "figures"
-    cases = [(threed.main, [str(results), str(figures), "paper_fit", "2", str(tmp_path / "missing.pt")],
-              "error: no 3-D checkpoint at"),
-             (threed.main, [str(results), str(figures), "paper_fit", "2", str(truncated)], "error: "),
-             (threed.main, [str(results)], "error: usage: python -m flock_torchrl.report.threed"),
-             (seeds.main, [str(tmp_path / "none.csv"), str(tmp_path / "claims.md")], "error: no seeds table"),
-             (seeds.main, [], "error: usage"),
-             (splice.main, [str(tmp_path / "none.md")], "error: "),
-             (main, ["publish-threed", "threed.episodes=two"], "error: threed.episodes: must be a whole number"),
-             (main, ["publish-threed", f"threed.policies=[{truncated}]"], "error: "),
-             (main, ["publish-threed", f"threed.policies=[{tmp_path}/none/*.pt]"], "error: no 3-D checkpoint matches")]
-    for function, args, line in cases:
-        assert function(args) == 2, (function.__module__, args)
+    cases = [(["publish-threed", "threed.episodes=two"], "error: threed.episodes: must be a whole number"),
+             (["publish-threed", f"threed.policies=[{truncated}]"], "error: "),
+             (["publish-threed", f"threed.policies=[{tmp_path}/none/*.pt]"], "error: no 3-D checkpoint matches")]
+    for args, line in cases:
+        assert main(args) == 2, args
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith(line), (function.__module__, args, err)
-    assert not results.exists() and not figures.exists() and not (tmp_path / FOLDER).exists()
+        assert len(err) == 1 and err[0].startswith(line), (args, err)
 
 
 # ---------------------------------------------------------------------------- each pipeline, stopped at several writes

@@ -6,7 +6,6 @@ at elevation 0, flown with a zero third action, gives the 2-D scenario's traject
 termination and metrics bit for bit, and its observation and state with the elevation and climb
 entries inserted. Then hand-computed answers for the 3-D geometry, kinematics and instinct."""
 
-import functools
 import math
 
 import imageio.v2 as imageio
@@ -503,32 +502,25 @@ def test_a_3d_checkpoint_evaluates_on_3d_scenarios_and_is_refused_on_2d_ones(tmp
     assert proc.returncode != 0 and "scenario.dims" in proc.stdout + proc.stderr
 
 
-def test_the_3d_table_pools_seeds_by_hand(tmp_path):
-    import json
+def test_the_3d_table_pools_seeds_by_hand():
+    from flock_torchrl.report.threed import COLUMNS, pooled_rows, published_markdown
 
-    from flock_torchrl.report.threed import cells, write_table
+    def row(policy, success, d_min_uav, checkpoint):
+        values = dict.fromkeys(COLUMNS, 1.0) | {"success_rate": success, "d_min_uav": d_min_uav, "t_goal": math.nan}
+        return {"scenario": "wall3d", "policy": policy, "checkpoint": checkpoint, "n_episodes": 10, **values}
 
-    def summary(policy, scenario, success, d_min_uav, std=0.1):
-        values = {"success_rate": success, "safe_success_rate": success, "d_min_uav": d_min_uav,
-                  "d_min_uav_std": std, "t_goal": None}
-        return {"policy": policy, "scenario": scenario, "n_episodes": 10, "summary": values}
-
-    runs = [summary("Policy3-G", "wall3d", 0.2, 1.0), summary("Policy3-G", "wall3d", 0.4, 2.0),
-            summary("Policy-OP", "wall3d", 0.0, 1.5)]
-    rows = {r["policy"]: r for r in cells(runs)}
-    # Two seeds: mean 0.3 and 1.5, spread over seeds sqrt(((0.1)^2 + (0.1)^2) / 1) and sqrt(0.5).
-    assert rows["Policy3-G"]["success_rate"] == pytest.approx(0.3)
-    assert rows["Policy3-G"]["success_rate_spread"] == pytest.approx(math.sqrt(0.02))
-    assert rows["Policy3-G"]["d_min_uav_spread"] == pytest.approx(math.sqrt(0.5))
-    assert rows["Policy3-G"]["seeds"] == 2 and rows["Policy3-G"]["episodes"] == 20
-    # One seed: its episodes' standard deviation, marked.
-    assert rows["Policy-OP"]["d_min_uav_spread"] == pytest.approx(0.1)
-    assert rows["Policy-OP"]["d_min_uav_over"] == "episodes"
-    for i, run in enumerate(runs):
-        (tmp_path / str(i)).mkdir()
-        (tmp_path / str(i) / "summary.json").write_text(json.dumps(run))
-    text = write_table(tmp_path).read_text()
-    assert "| wall3d | Policy3-G | 2 | 20 | 30.0 % ± 14.1 |" in text and "1.500 ± 0.100 e" in text
+    rows = [row("Policy3-G", 0.2, 1.0, "a/seed0.pt"), row("Policy3-G", 0.4, 2.0, "a/seed1.pt"),
+            row("Policy-OP", 0.0, 1.5, "baseline:policy_op")]
+    pooled = {r["policy"]: r for r in pooled_rows(rows)}
+    # Two seeds: the mean of their scores, inside its interval over seeds; one score: no interval (rates in %).
+    mine = pooled["Policy3-G"]
+    assert mine["seeds"] == 2 and mine["episodes"] == 20
+    assert mine["success_rate"] == pytest.approx(0.3) and mine["d_min_uav"] == pytest.approx(1.5)
+    assert mine["success_rate_low"] <= 0.3 <= mine["success_rate_high"]
+    assert pooled["Policy-OP"]["d_min_uav"] == 1.5 and math.isnan(pooled["Policy-OP"]["d_min_uav_low"])
+    assert math.isnan(mine["t_goal"])
+    text = published_markdown(rows, "make publish-threed")
+    assert "| wall3d | Policy-OP | 1 | 10 | 0.0 | 100.0 | 1.000 | 1.500 |" in text and text.rstrip().endswith("|")
 
 
 @pytest.mark.slow
@@ -622,24 +614,21 @@ def test_ship_refuses_an_unknown_collection(tmp_path):
 
 
 @pytest.mark.slow  # six shipped checkpoints flown and two GIFs drawn (~20 s)
-def test_publish_threed_writes_the_table_verdicts_and_figures(tmp_path, monkeypatch):
+def test_publish_threed_writes_the_table_verdicts_and_figures(tmp_path):
     """make publish-threed's writer on two episodes: the seeds' rows, the pooled table whose cells are
     the seeds' means with scipy's bootstrap interval, section 11's verdicts, the GIFs and the frames."""
     import csv
 
     from flock_torchrl.report.seeds import summarise
-    from flock_torchrl.report.threed import main
+    from flock_torchrl.report.threed import publish
     from helpers import ROOT
 
     shipped = ROOT / "checkpoints" / "paper_fit" / "threed"
     seeds = [str(shipped / p / f"seed{k}.pt") for p in ("policy3_g", "policy2_g") for k in range(3)]
     results, figures = tmp_path / "results", tmp_path / "figures"
-    from flock_torchrl.report import threed
-
-    # One scenario and small GIFs: the command line's own arguments otherwise.
-    monkeypatch.setattr(threed, "publish", functools.partial(threed.publish, scenarios=("wall3d",), gif_size=(60, 120),
-                                                             gif_stride=250))
-    main([str(results), str(figures), "paper_fit", "2", *seeds])
+    # One scenario and small GIFs: make publish-threed's own settings otherwise.
+    publish(seeds, results, figures, "paper_fit", 2, command="make publish-threed", scenarios=("wall3d",),
+            gif_size=(60, 120), gif_stride=250)
     with (results / "table3_3d_seeds.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert [(r["policy"], r["checkpoint"].rsplit("/", 2)[-2:]) for r in rows][:1] == [("Policy3-G", ["policy3_g", "seed0.pt"])]

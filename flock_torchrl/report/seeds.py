@@ -347,43 +347,6 @@ def write_claims(seeds_csv: str | Path, destination: str | Path) -> Path:
     return write_text(destination, text)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m flock_torchrl.report.seeds <table_seeds.csv> <claims.md> [<profile.png>]`` (or
-    ``--overview <out.md> <title>=<seeds.csv> ...``): the files land together or not at all; a bad input is
-    one ``error:`` line (exit status 2). ``make publish-claims`` writes them all for every published table."""
-    import sys
-
-    from ..run.publication import Publication, PublishError, entry
-
-    args = list(sys.argv[1:] if argv is None else argv)
-
-    def run() -> None:
-        if args[:1] == ["--overview"]:   # --overview <out.md> <title>=<seeds.csv> ...
-            if len(args) < 3 or any("=" not in a for a in args[2:]):
-                raise PublishError("usage: python -m flock_torchrl.report.seeds --overview <out.md> <title>=<seeds.csv> ...")
-            with Publication("the claims overview", [args[1]]) as pub:
-                write_overview(dict(a.split("=", 1) for a in args[2:]), pub.staged(args[1]))
-            print(f"wrote {args[1]}")
-            return
-        if len(args) not in (2, 3):
-            raise PublishError("usage: python -m flock_torchrl.report.seeds <table3_seeds.csv> <claims_over_seeds.md> "
-                               "[<performance_profile.png>]")
-        if not Path(args[0]).is_file():
-            raise PublishError(f"no seeds table at {args[0]}")
-        with Publication("the claims over seeds", args[1:]) as pub:
-            write_claims(args[0], pub.staged(args[1]))
-            if len(args) == 3:
-                plot_profiles(args[0], pub.staged(args[2]))
-        for path in args[1:]:
-            print(f"wrote {path}")
-
-    return entry(run)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
-
-
 __all__ = ["SMALLEST_DIFFERENCE", "Comparison", "Profile", "SeedSummary", "claim_verdict", "claims_overview",
            "claims_table", "compare", "compare_fixed", "comparisons_of", "iqm", "mean_difference", "performance_profile",
            "plot_profiles", "probability_of_improvement", "read_seed_scores", "score_distribution",

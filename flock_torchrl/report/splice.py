@@ -10,14 +10,11 @@ A document (README.md, docs/results.md) marks each quoted block with the file it
 title line dropped), paths relative to ``root`` (the repository). The make targets that write
 those files (``make publish``, ``make readme-demo``) run it, so no quoted number is copied by
 hand; :func:`stale_blocks` says which blocks differ from their file (the tests' check).
-
-    python -m flock_torchrl.report.splice docs/results.md README.md
 """
 
 from __future__ import annotations
 
 import re
-import sys
 import textwrap
 from pathlib import Path
 from typing import Sequence
@@ -244,41 +241,6 @@ def write_demo(log_path: str | Path, run_dir: str | Path, out: str | Path, threa
     text = (f"# `make demo`, as this machine printed it\n\n"
             f"Machine: {machine(int(threads))}.\n\n```\n" + "\n".join(lines) + "\n```\n\n" + note + "\n")
     return write_text(out, text)
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    if not args:
-        print("usage: python -m flock_torchrl.report.splice DOCUMENT...\n"
-              "       python -m flock_torchrl.report.splice --demo LOG RUN_DIR OUT", file=sys.stderr)
-        return 2
-    if args[0] == "--demo":
-        try:
-            print(f"wrote {write_demo(*args[1:4])}")
-        except (ConfigError, OSError, TypeError) as exc:
-            print(f"error: --demo: {exc}", file=sys.stderr)
-            return 2
-        return 0
-    from ..run.publication import Publication, entry
-
-    def splice_all() -> None:   # the documents land together, or none does
-        for document in args:
-            if not Path(document).is_file():
-                raise ConfigError("splice", f"{document}: no such document")
-            if _repository(Path(document)) != Path.cwd().resolve():
-                raise ConfigError("splice", f"{document}: run this from the root of its repository (the blocks' "
-                                            "paths are relative to it)")
-        with Publication("the spliced documents", [], documents=args, refresh=splice_staged, log=print) as pub:
-            pass
-        for document in args:
-            name = Path(document).absolute().relative_to(pub.root).as_posix()
-            print(f"{document}: " + ("spliced" if name in pub.landed else "every block current"))
-
-    return entry(splice_all)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
 
 
 __all__ = ["DEMO_TOLERANCE", "blocks", "cpu", "demo_differences", "demo_lines", "demo_numbers", "machine", "quoted",

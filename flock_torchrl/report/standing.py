@@ -2,8 +2,6 @@
 published tables, so it cannot drift from them (``make docs`` writes ``results/standing.md`` and
 splices it into README.md; the tests compare the file with what this module makes of ``results/``).
 
-    python -m flock_torchrl.report.standing [results_dir] [out.md]
-
 It reads each reading's ``fidelity.md`` (the score), ``table3.csv`` (ours beside the paper's),
 ``table3_seeds.csv`` and ``table3_paper_recipe_seeds.csv`` (the verdicts over seeds), the paper
 recipe's ``table3_paper_recipe.csv``, and ``paper_fit``'s ``scaling.csv`` and ``scaling_forest.csv``
@@ -14,7 +12,6 @@ comparison per scenario and size, ``results/paper_fit/scaling_pooled.md`` (docs/
 from __future__ import annotations
 
 import re
-import sys
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -282,23 +279,6 @@ def write_standing(results: str | Path = "results", out: str | Path | None = Non
         if table is not None:
             written.append(write_text(results / "paper_fit" / name, table))
     return written
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) > 2:
-        print("usage: python -m flock_torchrl.report.standing [results_dir] [out.md]", file=sys.stderr)
-        return 2
-    try:
-        print("wrote " + ", ".join(map(str, write_standing(*args))))
-    except (OSError, KeyError, ValueError) as exc:
-        print(f"error: standing: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
 
 
 __all__ = ["scaling_cells", "scaling_summary", "standing", "write_standing"]

@@ -1,101 +1,24 @@
 """The 3-D table in the form of Table III (docs/specification.md section 11): every policy on every
-3-D scenario, from the ``summary.json`` files ``scripts/evaluate.py`` wrote (one per policy, seed
-and scenario, laid out as ``<folder>/<policy>/<seed>/<scenario>/``); and the published table
-(:func:`publish`: ``make publish-threed``, ``make table3-3d``) with section 11's verdicts.
-
-A cell is the mean over the policy's seeds of each seed's episode mean, with the spread over seeds
-(standard deviation; a single seed shows its episodes' standard deviation instead, marked ``e``).
-Success rates are those of section 5; ``t_goal`` over the episodes that reached the goal.
+3-D scenario, each seed evaluated (:func:`seed_rows`), pooled over seeds with bootstrap intervals
+(:func:`pooled_rows`) and section 11's verdicts (:func:`comparisons`); :func:`publish` writes it with
+its figures (``make publish-threed``, ``make table3-3d``). Success rates are those of section 5;
+``t_goal`` over the episodes that reached the goal.
 """
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 import os
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from ..io import write_text
-from .reference import as_float
 
 COLUMNS = ("success_rate", "safe_success_rate", "d_min_obs", "d_min_uav", "d_c", "v_error", "phi_error", "speed",
            "t_goal")
 SCENARIOS = ("train3d", "forest3d", "wall3d")
 LABELS = ("success", "safe success", "d_min^obs (m)", "d_min^uav (m)", "d_c (m)", "V_error (m/s)", "phi_error (rad)",
           "V (m/s)", "t^g (s)")
-
-
-def collect(folder: str | os.PathLike) -> list[dict[str, Any]]:
-    """Every evaluation summary under ``folder`` (``**/summary.json``), in path order."""
-    return [json.loads(p.read_text()) for p in sorted(Path(folder).glob("**/summary.json"))]
-
-
-def cells(summaries: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per (policy, scenario): the seeds' count and, per column, mean and spread."""
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for s in summaries:
-        groups.setdefault((s["policy"], s["scenario"]), []).append(s)
-    rows = []
-    for (policy, scenario), runs in groups.items():
-        row: dict[str, Any] = {"policy": policy, "scenario": scenario, "seeds": len(runs),
-                               "episodes": sum(int(r["n_episodes"]) for r in runs)}
-        for column in COLUMNS:
-            values = [as_float(r["summary"].get(column)) for r in runs]
-            finite = [v for v in values if not math.isnan(v)]
-            mean = sum(finite) / len(finite) if finite else math.nan
-            if len(runs) > 1:
-                spread = (math.sqrt(sum((v - mean) ** 2 for v in finite) / (len(finite) - 1))
-                          if len(finite) > 1 else math.nan)
-                row[f"{column}_spread"], row[f"{column}_over"] = spread, "seeds"
-            else:
-                row[f"{column}_spread"] = as_float(runs[0]["summary"].get(f"{column}_std"))
-                row[f"{column}_over"] = "episodes"
-            row[column] = mean
-        rows.append(row)
-    return sorted(rows, key=lambda r: (r["scenario"], r["policy"]))
-
-
-def markdown(rows: list[dict[str, Any]]) -> str:
-    """The table as markdown: a block per scenario, a row per policy."""
-    def fmt(row: dict[str, Any], column: str) -> str:
-        mean, spread = row[column], row[f"{column}_spread"]
-        if math.isnan(mean):
-            return "-"
-        if column.endswith("rate"):
-            text = f"{100 * mean:.1f} %"
-            return text + (f" ± {100 * spread:.1f}" if row[f"{column}_over"] == "seeds" and not math.isnan(spread)
-                           else "")
-        mark = "" if row[f"{column}_over"] == "seeds" else " e"
-        return f"{mean:.3f}" + ("" if math.isnan(spread) else f" ± {spread:.3f}{mark}")
-
-    return "\n".join(_table(rows, fmt)) + "\n"
-
-
-def _table(rows: Iterable[dict[str, Any]], cell: Callable[[dict[str, Any], str], str]) -> list[str]:
-    """A row per policy and scenario, each column's text ``cell(row, column)``."""
-    return ["| scenario | policy | seeds | episodes | " + " | ".join(LABELS) + " |", "|" + "---|" * (4 + len(LABELS)),
-            *(f"| {r['scenario']} | {r['policy']} | {r['seeds']} | {r['episodes']} | "
-              + " | ".join(cell(r, c) for c in COLUMNS) + " |" for r in rows)]
-
-
-def write_table(folder: str | os.PathLike) -> Path:
-    """``<folder>/table3_3d.md`` and ``.csv`` from the summaries under ``folder``; returns the markdown's path."""
-    rows = cells(collect(folder))
-    if not rows:
-        raise FileNotFoundError(f"{folder}: no summary.json under it (run scripts/evaluate.py there first)")
-    out = Path(folder)
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text(out / "table3_3d.csv", buffer.getvalue())
-    text = ("# Table III in three dimensions\n\nEach cell: the mean over seeds of each seed's episode mean, ± the "
-            "standard deviation over seeds (one seed: over its episodes, marked e).\n\n" + markdown(rows))
-    write_text(out / "table3_3d.md", text)
-    return out / "table3_3d.md"
 
 
 def _episode(handle: Any, scenario: str, reading: str, seed: int) -> tuple[Any, Any]:
@@ -254,7 +177,10 @@ def published_markdown(rows: Sequence[dict[str, Any]], command: str) -> str:
              f"bootstrap interval over seeds (scipy.stats.bootstrap, {RESAMPLES} resamples); a baseline has one "
              "score per scenario. Rates in %, distances in m, speeds in m/s, angles in rad, t^g in s over the "
              "episodes that reached the goal. Each seed: `table3_3d_seeds.csv`. The rule: "
-             "docs/specification.md section 11.", "", *_table(pooled, _interval_cell),
+             "docs/specification.md section 11.", "",
+             "| scenario | policy | seeds | episodes | " + " | ".join(LABELS) + " |", "|" + "---|" * (4 + len(LABELS)),
+             *(f"| {r['scenario']} | {r['policy']} | {r['seeds']} | {r['episodes']} | "
+               + " | ".join(_interval_cell(r, c) for c in COLUMNS) + " |" for r in pooled),
              "", "## Verdicts", "",
              "Policy3-G above each other policy, per scenario and metric: P(X > Y) over seeds (ties half; against "
              "a baseline, the fraction of Policy3-G's seeds above its one score) and the difference of means, each "
@@ -370,37 +296,5 @@ def publish(checkpoints: Sequence[str], results: str | os.PathLike, figures: str
     return paths
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m flock_torchrl.report.threed <results> <figures> <reading> <episodes> <checkpoint.pt> ...``:
-    :func:`publish`, its table and figures landing together or not at all (a bad input: one ``error:`` line,
-    exit status 2; a stop signal: one line). ``make publish-threed`` runs it with the rest of the 3-D results."""
-    import sys
-
-    from ..run.publication import Publication, PublishError, entry
-
-    args = list(sys.argv[1:] if argv is None else argv)
-
-    def run() -> None:
-        if len(args) < 4 or not args[3].isdigit() or int(args[3]) < 1:
-            raise PublishError("usage: python -m flock_torchrl.report.threed <results dir> <figures dir> <reading> "
-                               "<episodes >= 1> <3-D checkpoint.pt> ...")
-        results, figures, reading, episodes, checkpoints = args[0], args[1], args[2], int(args[3]), args[4:]
-        missing = [c for c in checkpoints if not Path(c).is_file()]
-        if missing or not checkpoints:
-            raise PublishError(f"no 3-D checkpoint at {', '.join(missing) or 'any path given'} (make ship-threed ships them)")
-        from ..policies.checkpoint import load_checkpoint
-
-        for path in checkpoints:
-            load_checkpoint(path)   # a truncated or foreign file: one line, before any episode
-        with Publication("the 3-D table and figures", [results, figures]) as pub:
-            publish(checkpoints, pub.staged(results), pub.staged(figures), reading, episodes, command="make publish-threed")
-
-    return entry(run)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
-
-
-__all__ = ["COLUMNS", "SCENARIOS", "cells", "collect", "comparisons", "episode_frame", "episode_gifs", "figures_markdown",
-           "markdown", "pooled_rows", "publish", "publish_table", "representative", "seed_rows", "write_table"]
+__all__ = ["COLUMNS", "SCENARIOS", "comparisons", "episode_frame", "episode_gifs", "figures_markdown", "pooled_rows",
+           "publish", "publish_table", "representative", "seed_rows"]
