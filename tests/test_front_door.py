@@ -714,6 +714,21 @@ def test_a_long_evaluation_prints_progress_lines():
 
 
 # ---------------------------------------------------------------------------- 12, 13
+def test_every_docstring_example_runs_as_written():
+    """The ``>>>`` examples in the package's docstrings (the env's rollout, the baselines, ...) are run, so
+    they cannot drift from the code they show."""
+    import doctest
+    import importlib
+
+    package = ROOT / "flock_torchrl"
+    names = [".".join(path.relative_to(ROOT).with_suffix("").parts) for path in sorted(package.rglob("*.py"))
+             if ">>>" in path.read_text()]
+    assert "flock_torchrl.world.env" in names
+    for name in names:
+        result = doctest.testmod(importlib.import_module(name))
+        assert result.attempted > 0 and result.failed == 0, name
+
+
 def test_readmes_api_block_uses_what_it_loads():
     block = README.read_text().split("## Programmatic API", 1)[1].split("```", 2)[1]
     for name in re.findall(r"^(\w+) = ", block, flags=re.M):
